@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# Creates (or reuses) .venv and installs the project into it. Sourced by main.sh and test.sh.
+# torch goes in first and on its own: installed as a dependency, pip would pick the newest
+# CUDA build (several GB). Override with TORCH_SPEC, e.g. TORCH_SPEC="torch==2.5.1".
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+venv="${VENV:-$root/.venv}"
+python="${PYTHON:-python3}"
+if [ ! -x "$venv/bin/python" ]; then
+  echo "[setup] creating virtual environment in $venv"
+  "$python" -m venv "$venv"
+fi
+pip="$venv/bin/python -m pip"
+if ! "$venv/bin/python" -c "import torch" 2>/dev/null; then
+  echo "[setup] installing ${TORCH_SPEC:-torch==2.13.0} first"
+  $pip install -q "${TORCH_SPEC:-torch==2.13.0}"
+fi
+stamp="$venv/.cwh-installed"
+if [ ! -f "$stamp" ] || [ "$root/pyproject.toml" -nt "$stamp" ]; then
+  echo "[setup] installing cwh-autoresearch and its dependencies"
+  $pip install -q -e "$root[${EXTRAS:-dev}]"
+  touch "$stamp"
+fi
+export PATH="$venv/bin:$PATH"

@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# The test command: set-up, lint, format check, then the test suite. Extra args go to pytest.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+EXTRAS="${EXTRAS:-dev,ray}" source "$root/scripts/bootstrap.sh"
+cd "$root"
+echo "[test] ruff check"; ruff check .
+echo "[test] ruff format --check"; ruff format --check .
+echo "[test] pytest"
+# Two workers' worth of cores: keep BLAS/torch from oversubscribing them.
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MPLBACKEND=Agg
+exec python -m pytest -q "$@"
