@@ -8,12 +8,15 @@ from gymnasium.envs.registration import register, registry
 
 from cwh_envs.dynamics import cwh_matrices
 
-
 __all__ = ["cwh_matrices"]
 __version__ = "0.1.0"
 
 _ENVS = {
-    "CWHRendezvous-v0": ("cwh_envs.rendezvous:CWHRendezvousEnv", "cwh_envs.vector:CWHRendezvousVectorEnv", 80),
+    "CWHRendezvous-v0": (
+        "cwh_envs.rendezvous:CWHRendezvousEnv",
+        "cwh_envs.vector:CWHRendezvousVectorEnv",
+        80,
+    ),
     "CWHDockKOZ-v0": ("cwh_envs.docking:CWHDockKOZEnv", "cwh_envs.vector:CWHDockKOZVectorEnv", 240),
 }
 

@@ -1,0 +1,100 @@
+"""The two problems' constants, in one place (paper Sec. 4 and Table 1 defaults).
+
+The envs, the experts, the dataset builders, the CBF filter and the families all build
+their models from these dataclasses, so a changed constant changes every consumer at once.
+Every field is also a keyword argument of the corresponding env (``gym.make(id, **kwargs)``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from cwh_envs.dynamics import DISCRETIZATIONS, MASS, MEAN_MOTION, TIME_STEP, cwh_matrices
+
+
+@dataclass(frozen=True)
+class _Orbit:
+    n: float = MEAN_MOTION
+    dt: float = TIME_STEP
+    mass: float = MASS
+    discretization: str = "euler"
+    horizon: int = 80
+    u_max: float = 0.25
+
+    def matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        return cwh_matrices(self.n, self.dt, self.mass, self.discretization)
+
+    def replace(self, **changes):
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def __post_init__(self) -> None:
+        if self.discretization not in DISCRETIZATIONS:
+            raise ValueError(f"discretization must be one of {DISCRETIZATIONS}, got {self.discretization!r}")
+        if not (isinstance(self.horizon, int | np.integer) and self.horizon >= 2):
+            raise ValueError(f"horizon must be an integer >= 2, got {self.horizon!r}")
+        for name in ("n", "dt", "mass", "u_max"):
+            _positive(name, getattr(self, name))
+
+
+@dataclass(frozen=True)
+class RendezvousProblem(_Orbit):
+    """Unconstrained rendezvous to the origin (paper Sec. 4.2)."""
+
+    horizon: int = 80
+    u_max: float = 0.25  # N per axis
+    position_box: tuple[float, float, float] = (75.0, 75.0, 37.5)  # m, starts uniform in +-box
+    velocity_box: tuple[float, float, float] = (0.08, 0.08, 0.04)  # m/s
+    success_distance: float = 25.0  # m
+    success_speed: float = 0.05  # m/s
+    reach_tolerance: float = 1e-6  # m, expert terminal error accepted by the reachability screen
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("position_box", "velocity_box"):
+            box = getattr(self, name)
+            if len(box) != 3 or any(not (np.isfinite(v) and v >= 0) for v in box):
+                raise ValueError(f"{name} must be three non-negative half-widths, got {box!r}")
+        for name in ("success_distance", "success_speed", "reach_tolerance"):
+            _positive(name, getattr(self, name))
+
+
+@dataclass(frozen=True)
+class DockingProblem(_Orbit):
+    """Docking at a point outside a spherical keep-out zone at the origin (paper Sec. 4.3)."""
+
+    horizon: int = 240
+    u_max: float = 2.0  # N per axis
+    koz_radius: float = 5.0  # m, hard keep-out sphere centred at the origin
+    goal_radius: float = 8.0  # m, docking point distance from the centre
+    margin: float = 0.5  # m, standoff delta used by the expert's half-spaces and the CBF filter
+    start_distance: tuple[float, float] = (40.0, 110.0)  # m, far-side start range
+    success_distance: float = 1.0  # m, terminal distance to the docking point
+    success_speed: float = 0.05  # m/s, terminal relative speed
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("koz_radius", "goal_radius", "success_distance", "success_speed"):
+            _positive(name, getattr(self, name))
+        if not (np.isfinite(self.margin) and self.margin >= 0):
+            raise ValueError(f"margin must be a non-negative finite number, got {self.margin!r}")
+        if self.goal_radius <= self.koz_radius + self.margin:
+            raise ValueError(
+                f"goal_radius ({self.goal_radius}) must lie outside the keep-out radius plus margin "
+                f"({self.koz_radius} + {self.margin})"
+            )
+        low, high = self.start_distance
+        if not (self.goal_radius < low <= high):
+            raise ValueError(
+                f"start_distance must satisfy goal_radius < low <= high, got {self.start_distance!r}"
+            )
+
+
+def _positive(name: str, value: float) -> None:
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
