@@ -1,0 +1,201 @@
+"""A campaign directory and the loop state folded from its proposals.jsonl.
+
+The state is a pure function of the records: the live loop applies each record it writes
+through :meth:`CampaignState.apply`, and ``--resume`` rebuilds the identical state by applying
+the records read back from disk. Nothing else is kept in memory that the trail cannot restore.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from autoresearch.family import Family
+from autoresearch.space import canonical_key
+from autoresearch.verdicts import is_better, reaches_target
+
+STATUSES = ("ran", "failed", "invalid", "stop_accepted", "stop_rejected", "stopped")
+TERMINAL = ("stop_accepted", "stopped")
+BASELINE_PROPOSER = "baseline"
+
+
+class CampaignError(RuntimeError):
+    """The campaign directory is inconsistent or cannot be used."""
+
+
+@dataclass(frozen=True)
+class CampaignPaths:
+    root: Path
+
+    @property
+    def campaign_json(self) -> Path:
+        return self.root / "campaign.json"
+
+    @property
+    def family_json(self) -> Path:
+        return self.root / "family.json"
+
+    @property
+    def proposals(self) -> Path:
+        return self.root / "proposals.jsonl"
+
+    @property
+    def runs_log(self) -> Path:
+        return self.root / "runs.jsonl"
+
+    @property
+    def runs_dir(self) -> Path:
+        return self.root / "runs"
+
+    def run_dir(self, run_id: str) -> Path:
+        return self.runs_dir / run_id
+
+
+class CampaignState:
+    """Counters, best, seen configurations, spend and history after the records applied so far."""
+
+    def __init__(self, family: Family):
+        self.family = family
+        self.records: list[dict[str, Any]] = []
+        self.n_runs_ok = 0
+        self.n_experiments = 0  # successful runs the proposer chose (the baseline excluded)
+        self.n_runs_attempted = 0
+        self.consecutive_failures = 0
+        self.cost_usd = 0.0
+        self.input_tokens = 0
+        self.output_tokens = 0
+        self.elapsed_s = 0.0
+        self.best: dict[str, Any] | None = None
+        self.runs: list[tuple[float, bool]] = []  # (metric, feasible) of successful runs, in order
+        self.seen_configs: dict[str, int] = {}  # canonical config -> iteration that ran it
+        self.seen_overrides: dict[str, int] = {}
+        self.axes_exercised: set[str] = set()
+        self.run_ids: set[str] = set()
+        self.history_full: list[dict[str, Any]] = []
+        self.history_blind: list[dict[str, Any]] = []
+
+    @classmethod
+    def from_records(cls, family: Family, records: list[dict[str, Any]]) -> CampaignState:
+        state = cls(family)
+        for record in records:
+            state.apply(record)
+        return state
+
+    @property
+    def iterations(self) -> int:
+        return len(self.records)
+
+    @property
+    def last(self) -> dict[str, Any] | None:
+        return self.records[-1] if self.records else None
+
+    @property
+    def finished(self) -> bool:
+        return self.last is not None and self.last["status"] in TERMINAL
+
+    @property
+    def best_metric(self) -> float | None:
+        return self.best["metric"] if self.best else None
+
+    @property
+    def target_met(self) -> bool:
+        return reaches_target(self.best_metric, self.family.target, self.family.direction)
+
+    def current_values(self) -> dict[str, Any]:
+        """The configuration the next overrides apply to: the best so far, else the baseline."""
+        return dict(self.best["config"]) if self.best else self.family.baseline_config
+
+    def best_after(self, metric: float | None, feasible: bool | None) -> float | None:
+        if metric is not None and feasible and is_better(metric, self.best_metric, self.family.direction):
+            return metric
+        return self.best_metric
+
+    def seen_at(self, overrides: dict[str, Any], config: dict[str, Any]) -> str | None:
+        """Why (overrides, config) repeats an evaluated point (paper Eq. dedup), or None."""
+        if canonical_key(overrides) in self.seen_overrides:
+            return f"this override map was already run at iteration {self.seen_overrides[canonical_key(overrides)]}"
+        if canonical_key(config) in self.seen_configs:
+            return f"the resulting configuration was already run at iteration {self.seen_configs[canonical_key(config)]}"
+        return None
+
+    def warnings(self) -> tuple[str, ...]:
+        """What the proposer must hear about the last iteration."""
+        last = self.last
+        if last is None:
+            return ()
+        i, reason = last["iteration"], last.get("reason")
+        if last["status"] == "invalid":
+            return (f"Iteration {i}: your proposal was refused and nothing ran: {reason}",)
+        if last["status"] == "stop_rejected":
+            return (f"Iteration {i}: your stop request was rejected: {reason}",)
+        if last["status"] == "failed":
+            return (f"Iteration {i}: run {last['run_id']} failed: {reason}",)
+        return ()
+
+    def apply(self, record: dict[str, Any]) -> None:
+        expected = self.iterations + 1
+        if record.get("iteration") != expected:
+            raise CampaignError(
+                f"proposals.jsonl: expected iteration {expected}, found {record.get('iteration')!r}"
+            )
+        if record.get("status") not in STATUSES:
+            raise CampaignError(
+                f"proposals.jsonl: iteration {expected} has unknown status {record.get('status')!r}"
+            )
+        self.records.append(record)
+        self.cost_usd += record.get("cost_usd") or 0.0
+        self.input_tokens += record.get("input_tokens") or 0
+        self.output_tokens += record.get("output_tokens") or 0
+        self.elapsed_s = record.get("elapsed_s") or self.elapsed_s
+        status = record["status"]
+        if status in ("failed", "invalid", "stop_rejected"):
+            self.consecutive_failures += 1
+        if status in ("ran", "failed"):
+            self._apply_run(record)
+
+    def _apply_run(self, record: dict[str, Any]) -> None:
+        config, overrides = record["config"], record["overrides"]
+        self.n_runs_attempted += 1
+        self.run_ids.add(record["run_id"])
+        self.seen_configs.setdefault(canonical_key(config), record["iteration"])
+        self.seen_overrides.setdefault(canonical_key(overrides), record["iteration"])
+        metric_name = self.family.metric
+        hypothesis = ((record.get("proposal") or {}).get("annotation") or {}).get("hypothesis")
+        item = {
+            "iteration": record["iteration"],
+            "run_id": record["run_id"],
+            "status": record.get("run_status", "ok" if record["status"] == "ran" else "failed"),
+            "hypothesis": hypothesis,
+            "overrides": overrides,
+            "config": config,
+            metric_name: record.get("metric"),
+        }
+        if record["status"] == "failed":
+            item["reason"] = record.get("reason")
+        else:
+            metric, feasible = record["metric"], bool(record["feasible"])
+            self.n_runs_ok += 1
+            self.consecutive_failures = 0
+            self.runs.append((metric, feasible))
+            if record.get("proposer") != BASELINE_PROPOSER:
+                self.n_experiments += 1
+                baseline = self.family.baseline_config
+                self.axes_exercised |= self.family.space.axes_of(
+                    {k for k in config if config[k] != baseline[k]}
+                )
+            if feasible and is_better(metric, self.best_metric, self.family.direction):
+                self.best = {
+                    "metric": metric,
+                    "config": config,
+                    "run_id": record["run_id"],
+                    "iteration": record["iteration"],
+                }
+            aux = {
+                k: v
+                for k, v in (record.get("record") or {}).items()
+                if k not in ("run_id", "config", metric_name)
+            }
+            item.update(feasible=feasible, verdict=record.get("verdict"), auxiliary=aux)
+        self.history_full.append(item)
+        self.history_blind.append({"config": config, metric_name: record.get("metric")})

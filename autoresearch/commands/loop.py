@@ -1,0 +1,227 @@
+"""``autoresearch loop``: run (or resume) one campaign of the agent loop on a family."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from autoresearch.campaign import CampaignError, CampaignPaths
+from autoresearch.context import shown_registry
+from autoresearch.family import FamilyError, resolve_family
+from autoresearch.journal import JournalError, read_json, write_json_atomic
+from autoresearch.live import make_view
+from autoresearch.orchestrator import LoopSettings, Orchestrator
+from autoresearch.proposers import KEY_FREE, PROPOSERS, make_proposer
+from autoresearch.stopping import Budgets
+
+# Settings a campaign keeps in campaign.json; on --resume, flags given again override them.
+DEFAULTS: dict[str, Any] = {
+    "model": None,
+    "base_url": None,
+    "blind": False,
+    "max_iters": 50,
+    "max_runs": None,
+    "max_seconds": None,
+    "max_cost_usd": 10.0,
+    "max_failures": 3,
+    "plateau_window": 6,
+    "plateau_kappa": 1.0,
+    "seed": 0,
+    "timeout_per_run": 3600.0,
+    "random_arm": None,
+}
+API_KEYS = {"anthropic": "ANTHROPIC_API_KEY", "openai": "OPENAI_API_KEY"}
+
+
+class UsageError(Exception):
+    """Bad command-line input; the message is shown as is, exit code 2."""
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a positive {kind.__name__}, got {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"expected a positive {kind.__name__}, got {text!r}")
+        return value
+
+    return parse
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "loop",
+        help="run the agent loop on a family (one campaign)",
+        description="Run the agent loop on a family: propose, patch, run, record, until a stopping trigger fires.",
+        epilog="Example: autoresearch loop --family docking --proposer tpe --max-iters 30",
+    )
+    p.add_argument("--family", help="family name (families/<name>) or family directory")
+    p.add_argument("--proposer", choices=PROPOSERS, help="default: anthropic when ANTHROPIC_API_KEY is set")
+    p.add_argument("--model", help="LLM model name (LLM proposers)")
+    p.add_argument("--base-url", help="OpenAI-compatible endpoint (openai proposer)")
+    p.add_argument(
+        "--blind", action="store_true", default=None, help="blind mode: no target, baseline or best shown"
+    )
+    p.add_argument(
+        "--max-iters", type=_positive(int), help=f"iteration cap (default {DEFAULTS['max_iters']})"
+    )
+    p.add_argument("--max-runs", type=_positive(int), help="cap on successful runs")
+    p.add_argument("--max-seconds", type=_positive(float), help="wall-clock budget of the loop")
+    p.add_argument(
+        "--max-cost-usd", type=_positive(float), help=f"LLM spend cap (default {DEFAULTS['max_cost_usd']})"
+    )
+    p.add_argument(
+        "--max-failures", type=_positive(int), help="consecutive failed/invalid iterations (default 3)"
+    )
+    p.add_argument(
+        "--plateau-window", type=_positive(int), help="plateau window in successful runs (default 6)"
+    )
+    p.add_argument("--plateau-kappa", type=_positive(float), help="plateau margin in noise units (default 1)")
+    p.add_argument("--seed", type=int, help="seed of the proposer (runs train at the family's default_seed)")
+    p.add_argument(
+        "--timeout-per-run", type=_positive(float), help="wall-clock limit of one run, s (default 3600)"
+    )
+    p.add_argument("--random-arm", help="a random-search campaign dir whose summary the proposer is shown")
+    p.add_argument(
+        "--campaign", help="campaign directory (default runs/<family>-<proposer>-<YYYYmmdd-HHMMSS>)"
+    )
+    p.add_argument("--resume", action="store_true", help="continue the campaign in --campaign")
+    p.add_argument("--plain", action="store_true", help="one line per iteration even on a terminal")
+    return p
+
+
+def _default_proposer() -> str:
+    if os.environ.get(API_KEYS["anthropic"]):
+        return "anthropic"
+    raise UsageError(
+        "no proposer chosen and ANTHROPIC_API_KEY is not set. Set ANTHROPIC_API_KEY for the anthropic "
+        f"proposer, or choose a key-free one: --proposer {' or --proposer '.join(KEY_FREE)}"
+    )
+
+
+def _check_key(proposer: str, settings: dict[str, Any]) -> None:
+    key = API_KEYS.get(proposer)
+    if key and not os.environ.get(key) and not (proposer == "openai" and settings["base_url"]):
+        raise UsageError(
+            f"--proposer {proposer} needs {key} in the environment; the key-free proposers are {', '.join(KEY_FREE)}"
+        )
+
+
+def _settings(args: argparse.Namespace, saved: dict[str, Any]) -> dict[str, Any]:
+    given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
+    settings = {**DEFAULTS, **saved, **given}
+    if settings["random_arm"] is not None:
+        settings["random_arm"] = str(Path(settings["random_arm"]).resolve())
+    return settings
+
+
+def _plan(args: argparse.Namespace) -> tuple[Path, dict[str, Any]]:
+    """(campaign dir, campaign.json content) for a new or resumed campaign."""
+    now = datetime.now(timezone.utc)
+    session = {"started": now.isoformat(timespec="seconds"), "argv": sys.argv[1:]}
+    if args.resume:
+        if not args.campaign:
+            raise UsageError("--resume needs --campaign DIR")
+        root = Path(args.campaign)
+        if not CampaignPaths(root).campaign_json.exists():
+            raise UsageError(f"{root}: no campaign.json; not a campaign directory")
+        meta = read_json(CampaignPaths(root).campaign_json)
+        if args.proposer and args.proposer != meta["proposer"]:
+            raise UsageError(f"this campaign's proposer is {meta['proposer']}; a campaign cannot change it")
+        family = resolve_family(args.family or meta["family"])
+        if family.name != meta["family_name"]:
+            raise UsageError(f"this campaign is of family {meta['family_name']!r}, not {family.name!r}")
+        meta.update(family=str(family.path), settings=_settings(args, meta["settings"]))
+        meta["sessions"] = [*meta.get("sessions", []), session]
+        return root, meta
+    if not args.family:
+        raise UsageError("--family is required (a name under families/ or a directory)")
+    family = resolve_family(args.family)
+    proposer = args.proposer or _default_proposer()
+    root = Path(args.campaign or f"runs/{family.name}-{proposer}-{now.astimezone():%Y%m%d-%H%M%S}")
+    if root.exists() and any(root.iterdir()):
+        raise UsageError(f"{root} already exists; continue it with --resume --campaign {root}")
+    meta = {
+        "family": str(family.path),
+        "family_name": family.name,
+        "proposer": proposer,
+        "settings": _settings(args, {}),
+        "created": now.isoformat(timespec="seconds"),
+        "sessions": [session],
+    }
+    return root, meta
+
+
+def _on_sigterm(signum, frame):
+    raise KeyboardInterrupt  # unwinds through the runner, which kills the training process group
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        root, meta = _plan(args)
+        settings = meta["settings"]
+        _check_key(meta["proposer"], settings)
+        family = resolve_family(meta["family"])
+        proposer = make_proposer(
+            meta["proposer"],
+            shown_registry(family.registry, settings["blind"]),
+            seed=settings["seed"],
+            model=settings["model"],
+            base_url=settings["base_url"],
+        )
+        if settings["random_arm"] and not Path(settings["random_arm"]).is_dir():
+            raise UsageError(f"--random-arm {settings['random_arm']}: not a directory")
+        root.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(CampaignPaths(root).campaign_json, meta)
+    except (UsageError, FamilyError, ValueError, ImportError) as err:
+        print(f"autoresearch loop: error: {err}", file=sys.stderr)
+        return 2
+    loop = LoopSettings(
+        proposer_name=meta["proposer"],
+        budgets=Budgets(
+            max_seconds=settings["max_seconds"],
+            max_runs=settings["max_runs"],
+            max_iters=settings["max_iters"],
+            max_failures=settings["max_failures"],
+            max_cost_usd=settings["max_cost_usd"],
+            plateau_window=settings["plateau_window"],
+            plateau_kappa=settings["plateau_kappa"],
+        ),
+        blind=settings["blind"],
+        timeout_per_run=settings["timeout_per_run"],
+        random_arm=Path(settings["random_arm"]) if settings["random_arm"] else None,
+    )
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    resume_hint = f"autoresearch loop --resume --campaign {root}"
+    try:
+        outcome = Orchestrator(family, proposer, root, loop, view=make_view(family.metric, args.plain)).run()
+    except KeyboardInterrupt:
+        print(f"\ninterrupted; campaign: {root}\nresume with: {resume_hint}", file=sys.stderr)
+        return 130
+    except (CampaignError, JournalError) as err:
+        print(f"autoresearch loop: error: {err}", file=sys.stderr)
+        return 2
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    best = outcome.best
+    best_text = f"{best['metric']:.6g} ({best['run_id']})" if best else "none (no feasible run)"
+    print(f"campaign: {root}")
+    print(
+        f"  ended: {outcome.status}"
+        + (f" ({outcome.trigger})" if outcome.trigger else "")
+        + f": {outcome.reason}"
+    )
+    print(
+        f"  iterations: {outcome.iterations}, successful runs: {outcome.n_runs_ok}, best {family.metric}: {best_text}"
+    )
+    if outcome.status == "prepare_failed":
+        print(f"  fix the family, then: {resume_hint}")
+        return 1
+    return 0

@@ -1,0 +1,78 @@
+"""What the proposer is shown each turn (paper Sec. 3.3), in blind mode stripped of every answer-bearing number."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from typing import Any
+
+from autoresearch.campaign import CampaignPaths, CampaignState
+from autoresearch.family import Family
+from autoresearch.journal import read_json, read_jsonl
+from autoresearch.proposers.base import ProposerContext
+
+# The registry fields a blind proposer may see: the problem's invariant facts and its search
+# space. Target, baseline, best and seed noise (and any field the contract does not define) are
+# withheld, so no number hints at what is good.
+BLIND_REGISTRY_KEYS = (
+    "name",
+    "metric",
+    "direction",
+    "feasibility_field",
+    "default_seed",
+    "axes",
+    "search_space",
+)
+TOP_K = 5
+
+
+def shown_registry(registry: dict[str, Any], blind: bool) -> dict[str, Any]:
+    if not blind:
+        return copy.deepcopy(registry)
+    return {k: copy.deepcopy(registry[k]) for k in BLIND_REGISTRY_KEYS if k in registry}
+
+
+def summarize_random_arm(campaign_dir: Path, family: Family) -> str:
+    """A compact text summary of a random-search campaign of the same family."""
+    paths = CampaignPaths(Path(campaign_dir))
+    if not paths.proposals.exists():
+        raise FileNotFoundError(f"{paths.proposals}: not found; is {campaign_dir} a campaign directory?")
+    if paths.campaign_json.exists():
+        arm_family = read_json(paths.campaign_json).get("family_name")
+        if arm_family not in (None, family.name):
+            raise ValueError(f"{campaign_dir} is a campaign of family {arm_family!r}, not {family.name!r}")
+    records = read_jsonl(paths.proposals)
+    ran = [r for r in records if r["status"] == "ran"]
+    failed = sum(r["status"] == "failed" for r in records)
+    metric, direction = family.metric, family.direction
+    lines = [f"Random-search arm ({paths.root.name}): {len(ran)} successful runs, {failed} failed."]
+    ranked = sorted(ran, key=lambda r: (not r["feasible"], -direction * r["metric"]))
+    for r in ranked[:TOP_K]:
+        flag = "" if r["feasible"] else " (infeasible)"
+        lines.append(
+            f"  {metric}={r['metric']:.6g}{flag} at iteration {r['iteration']}: {json.dumps(r['config'])}"
+        )
+    return "\n".join(lines)
+
+
+def build_context(
+    state: CampaignState,
+    *,
+    registry: dict[str, Any],
+    blind: bool,
+    extra_warnings: tuple[str, ...] = (),
+    random_arm_summary: str | None = None,
+) -> ProposerContext:
+    family = state.family
+    history = state.history_blind if blind else state.history_full
+    return ProposerContext(
+        iteration=state.iterations + 1,
+        warnings=state.warnings() + extra_warnings,
+        program=family.program_blind if blind else family.program,
+        registry=shown_registry(registry, blind),
+        random_arm_summary=random_arm_summary,
+        history=tuple(copy.deepcopy(history)),
+        current_values=state.current_values(),
+        blind=blind,
+    )

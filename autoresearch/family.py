@@ -1,0 +1,204 @@
+"""Load and validate a family directory (docs/family-contract.md).
+
+A :class:`Family` is read-only: autoresearch reads these files and never writes under the
+family directory. Every error names the file and field that is missing or invalid.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from autoresearch.editable import EditableError, read_region
+from autoresearch.space import SearchSpace, SpaceError, ValidationError
+
+REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")
+DIRECTIONS = {"maximize": +1, "minimize": -1}
+
+
+class FamilyError(ValueError):
+    """The family directory does not satisfy the contract."""
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+@dataclass(frozen=True)
+class Family:
+    path: Path
+    name: str
+    program: str
+    program_blind: str
+    train_source: str
+    registry: dict[str, Any]
+    space: SearchSpace
+
+    @property
+    def metric(self) -> str:
+        return self.registry["metric"]
+
+    @property
+    def direction(self) -> int:
+        """sigma_dir: +1 when larger metric values are better, -1 when smaller are."""
+        return DIRECTIONS[self.registry["direction"]]
+
+    @property
+    def target(self) -> float | None:
+        return self.registry.get("target")
+
+    @property
+    def feasibility_field(self) -> str | None:
+        return self.registry.get("feasibility_field")
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        return tuple(self.registry["axes"])
+
+    @property
+    def baseline_config(self) -> dict[str, Any]:
+        return dict(self.registry["baseline"]["config"])
+
+    @property
+    def default_seed(self) -> int:
+        return self.registry.get("default_seed", 0)
+
+    @property
+    def seed_noise(self) -> dict[str, Any] | None:
+        return self.registry.get("seed_noise")
+
+    @property
+    def sigma(self) -> float | None:
+        """The measured seed noise (std of the metric), when ``autoresearch noise`` has run."""
+        return self.seed_noise["std"] if self.seed_noise else None
+
+    def is_feasible(self, record: dict[str, Any]) -> bool:
+        """A run counts as best or as reaching the target only when its feasibility field is true."""
+        field = self.feasibility_field
+        return field is None or record.get(field) is True
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> Family:
+        path = Path(path).resolve()
+        if not path.is_dir():
+            raise FamilyError(f"{path}: not a directory")
+        missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
+        if missing:
+            raise FamilyError(f"{path}: missing {', '.join(missing)} (see docs/family-contract.md)")
+        try:
+            registry = json.loads((path / "family.json").read_text(encoding="utf-8"))
+        except ValueError as err:
+            raise FamilyError(f"{path / 'family.json'}: not valid JSON ({err})") from None
+        space = _check_registry(registry, path / "family.json")
+        train_source = (path / "train.py").read_text(encoding="utf-8")
+        _check_train_py(train_source, registry, space, path / "train.py")
+        return cls(
+            path=path,
+            name=registry["name"],
+            program=(path / "program.md").read_text(encoding="utf-8"),
+            program_blind=(path / "program_blind.md").read_text(encoding="utf-8"),
+            train_source=train_source,
+            registry=registry,
+            space=space,
+        )
+
+
+def _check_registry(registry: Any, where: Path) -> SearchSpace:
+    if not isinstance(registry, dict):
+        raise FamilyError(f"{where}: must hold a JSON object")
+
+    def bad(field: str, why: str) -> FamilyError:
+        return FamilyError(f"{where}: '{field}' {why}")
+
+    for field in ("name", "metric"):
+        if not isinstance(registry.get(field), str) or not registry[field]:
+            raise bad(field, "must be a non-empty string")
+    if registry.get("direction") not in DIRECTIONS:
+        raise bad("direction", f"must be 'maximize' or 'minimize', got {registry.get('direction')!r}")
+    if registry.get("target") is not None and not _number(registry["target"]):
+        raise bad("target", "must be a finite number or null")
+    field = registry.get("feasibility_field")
+    if field is not None and (not isinstance(field, str) or not field):
+        raise bad("feasibility_field", "must be a field name or null")
+    seed = registry.get("default_seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        raise bad("default_seed", "must be an integer")
+    axes = registry.get("axes")
+    if not isinstance(axes, list) or not axes or not all(isinstance(a, str) and a for a in axes):
+        raise bad("axes", "must be a non-empty list of names")
+    if len(set(axes)) != len(axes):
+        raise bad("axes", "must not repeat a name")
+    try:
+        space = SearchSpace.from_json(registry.get("search_space"), tuple(axes))
+    except SpaceError as err:
+        raise FamilyError(f"{where}: {err}") from None
+    baseline = registry.get("baseline")
+    if not isinstance(baseline, dict) or not isinstance(baseline.get("config"), dict):
+        raise bad("baseline", "must be an object with a 'config'")
+    try:
+        space.validate_full(baseline["config"])
+    except ValidationError as err:
+        raise bad("baseline.config", f"is not a point of the search space: {err}") from None
+    noise = registry.get("seed_noise")
+    if noise is not None and not (
+        isinstance(noise, dict) and _number(noise.get("std")) and noise["std"] >= 0
+    ):
+        raise bad("seed_noise", "must be null or an object with a finite 'std' >= 0")
+    best = registry.get("best")
+    if best is not None and not (isinstance(best, dict) and isinstance(best.get("config"), dict)):
+        raise bad("best", "must be null or an object with a 'config'")
+    return space
+
+
+def _check_train_py(source: str, registry: dict[str, Any], space: SearchSpace, where: Path) -> None:
+    try:
+        defaults = read_region(source).values()
+    except EditableError as err:
+        raise FamilyError(f"{where}: {err}") from None
+    if set(defaults) != set(space.names):
+        extra, absent = sorted(set(defaults) - set(space.names)), sorted(set(space.names) - set(defaults))
+        raise FamilyError(
+            f"{where}: the editable region must assign exactly the search-space parameters"
+            + (f"; not in search_space: {extra}" if extra else "")
+            + (f"; not in the editable region: {absent}" if absent else "")
+        )
+    try:
+        canonical = space.validate_full(defaults)
+    except ValidationError as err:
+        raise FamilyError(f"{where}: an editable default is outside the search space: {err}") from None
+    baseline = space.validate_full(registry["baseline"]["config"])
+    differing = [
+        n for n in space.names if canonical[n] != baseline[n] or type(canonical[n]) is not type(baseline[n])
+    ]
+    if differing:
+        raise FamilyError(
+            f"{where}: baseline.config in family.json differs from the editable defaults for "
+            + ", ".join(f"{n} ({baseline[n]!r} vs {canonical[n]!r})" for n in differing)
+        )
+
+
+def _walk_up(start: Path):
+    yield start
+    yield from start.parents
+
+
+def resolve_family(name_or_path: str | os.PathLike[str]) -> Family:
+    """A family given as a directory path, else ``./families/<name>``, else ``families/<name>``
+    in the nearest parent of the working directory that has it."""
+    given = Path(name_or_path)
+    if given.is_dir():
+        return Family.load(given)
+    cwd = Path.cwd()
+    if len(given.parts) == 1:
+        for root in _walk_up(cwd):
+            candidate = root / "families" / given.name
+            if candidate.is_dir():
+                return Family.load(candidate)
+    raise FamilyError(
+        f"no family {os.fspath(name_or_path)!r}: it is not a directory, and no families/{given.name} "
+        f"exists in {cwd} or any of its parents"
+    )

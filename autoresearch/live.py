@@ -1,0 +1,178 @@
+"""What the loop shows while it runs: a rich live table on a terminal, one line per iteration otherwise.
+
+The orchestrator calls a :class:`View`; the base class shows nothing (used in tests and by
+callers that want silence).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from typing import Any, ClassVar, TextIO
+
+from autoresearch.proposers.base import Proposal
+
+MAX_ROWS = 20
+
+
+def _short(value: Any, width: int) -> str:
+    text = value if isinstance(value, str) else json.dumps(value)
+    return text if len(text) <= width else text[: width - 1] + "…"
+
+
+def _compact(overrides: Any) -> str:
+    """NAME=value pairs with short floats: one table cell, not a JSON dump."""
+    if not isinstance(overrides, dict):
+        return _short(overrides, 60)
+    return " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in overrides.items())
+
+
+def _number(value: Any) -> str:
+    return "-" if value is None else f"{value:.5g}"
+
+
+def _outcome(record: dict[str, Any]) -> str:
+    """Status column: what happened, with the run id when something ran."""
+    status = record["status"]
+    if status == "ran":
+        wall = record["wall_seconds"]
+        return record["run_id"] + (f" ({wall:.1f}s)" if wall is not None else "")
+    if status == "failed":
+        return f"{record['run_id']} {record['run_status']}"
+    if status == "stopped":
+        return f"stopped: {record['trigger']}"
+    return status
+
+
+class View:
+    """Receives the loop's events; shows nothing."""
+
+    def iteration_started(self, iteration: int) -> None:
+        pass
+
+    def proposal(self, iteration: int, proposer: str, proposal: Proposal) -> None:
+        pass
+
+    def run_started(self, run_id: str) -> None:
+        pass
+
+    def run_progress(self, elapsed: float) -> None:
+        pass
+
+    def record(self, record: dict[str, Any], closest: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class PlainView(View):
+    """One line per iteration, for logs and pipes."""
+
+    def __init__(self, metric: str, stream: TextIO | None = None):
+        self.metric = metric
+        self.stream = stream or sys.stdout
+
+    def record(self, record: dict[str, Any], closest: str) -> None:
+        head = f"[it {record['iteration']}] {record['proposer']}: {_outcome(record)}"
+        if record["status"] == "ran":
+            body = f"{self.metric}={_number(record['metric'])} ({record['verdict']})"
+        else:
+            body = record["reason"] or ""
+        tail = f"best={_number(record['best_so_far'])} spend=${record['cumulative_cost_usd']:.4f} | {closest}"
+        print(f"{head} {body} | {tail}", file=self.stream, flush=True)
+
+
+class RichView(View):
+    """A live table: iteration, hypothesis, overrides, run progress, metric, verdict, best, spend."""
+
+    # column -> width settings: fixed widths for short fields, shares of the rest for free text
+    COLUMNS: ClassVar[dict[str, dict[str, int]]] = {
+        "it": {"max_width": 3},
+        "proposer": {"max_width": 8},
+        "hypothesis": {"ratio": 2, "min_width": 8},
+        "overrides": {"ratio": 3, "min_width": 8},
+        "run": {"max_width": 18},
+        "metric": {"max_width": 8},
+        "verdict": {"ratio": 1, "min_width": 12},
+        "best": {"max_width": 8},
+        "spend": {"max_width": 7},
+    }
+
+    def __init__(self, metric: str, console: Any = None):
+        from rich.console import Console
+        from rich.live import Live
+
+        self.metric = metric
+        self.rows: list[dict[str, str]] = []
+        self.current: dict[str, str] | None = None
+        self.run_id = ""
+        self.shown_second = -1
+        self.closest = ""
+        self.live = Live(self._table(), console=console or Console(), refresh_per_second=4)
+        self.live.start()
+
+    def _table(self):
+        from rich.table import Table
+
+        table = Table(title=f"autoresearch loop ({self.metric})", caption=self.closest or None, expand=True)
+        for column, width in self.COLUMNS.items():
+            table.add_column(column, no_wrap=True, overflow="ellipsis", **width)  # one line per iteration
+        rows = self.rows[-MAX_ROWS:] + ([self.current] if self.current else [])
+        for row in rows:
+            table.add_row(*(row.get(c, "") for c in self.COLUMNS))
+        return table
+
+    def _refresh(self) -> None:
+        self.live.update(self._table())
+
+    def iteration_started(self, iteration: int) -> None:
+        self.current = {"it": str(iteration), "run": "proposing…"}
+        self._refresh()
+
+    def proposal(self, iteration: int, proposer: str, proposal: Proposal) -> None:
+        annotation = proposal.annotation if isinstance(proposal.annotation, dict) else {}
+        hypothesis = annotation.get("hypothesis") or annotation.get("conclusion") or proposal.error or ""
+        self.current = {
+            "it": str(iteration),
+            "proposer": proposer,
+            "hypothesis": str(hypothesis),
+            "overrides": _compact(proposal.overrides) if proposal.kind == "propose" else proposal.kind,
+            "run": "",
+        }
+        self._refresh()
+
+    def run_started(self, run_id: str) -> None:
+        self.run_id = run_id
+        self.shown_second = -1
+        self.run_progress(0.0)
+
+    def run_progress(self, elapsed: float) -> None:
+        if self.current is not None and int(elapsed) != self.shown_second:
+            self.shown_second = int(elapsed)
+            self.current["run"] = f"{self.run_id} running {self.shown_second}s"
+            self._refresh()
+
+    def record(self, record: dict[str, Any], closest: str) -> None:
+        row = dict(self.current or {"it": str(record["iteration"]), "proposer": record["proposer"]})
+        row.update(
+            run=_outcome(record),
+            metric=_number(record["metric"]),
+            verdict=record["verdict"] or ("" if record["status"] == "ran" else record["reason"] or ""),
+            best=_number(record["best_so_far"]),
+            spend=f"${record['cumulative_cost_usd']:.4f}",
+        )
+        self.rows.append(row)
+        self.current = None
+        self.closest = f"closest stop: {closest}"
+        self._refresh()
+
+    def close(self) -> None:
+        self.live.stop()
+
+
+def make_view(metric: str, plain: bool = False) -> View:
+    """A rich live table on a terminal, else (or with ``plain``) one line per iteration."""
+    if plain or not sys.stdout.isatty():
+        return PlainView(metric)
+    return RichView(metric)

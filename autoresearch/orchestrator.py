@@ -1,0 +1,427 @@
+"""The agent loop of one campaign (paper Algorithm 1).
+
+Each iteration: check the stopping triggers, ask the proposer (the first experiment is the
+family's baseline, with no proposer call), validate and deduplicate the proposal, run it,
+judge it, record it. Exactly one record per iteration goes to proposals.jsonl, whatever
+happened; the loop state is a fold over those records (:mod:`autoresearch.campaign`).
+
+Durability: before a run starts, the iteration's record-to-be is written atomically to
+``runs/<run_id>/intent.json``. After a crash at any moment, ``--resume`` finds an intent
+without a proposals record and finishes that iteration: it kills what is left of the run,
+then adopts its outcome from ``result.json`` (the runner's verdict) or from the run's line in
+runs.jsonl (train.py finished), or else marks the run dir interrupted and re-runs the same
+configuration under a new run id (``<run_id>-r2``, ...), listing the lost attempts in
+``interrupted_run_ids``. Iterations stay contiguous and no run id is recorded twice.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from autoresearch.campaign import BASELINE_PROPOSER, CampaignError, CampaignPaths, CampaignState
+from autoresearch.context import build_context, summarize_random_arm
+from autoresearch.family import Family
+from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
+from autoresearch.live import View
+from autoresearch.proposers.base import Proposal, Proposer
+from autoresearch.runner import (
+    RunResult,
+    check_record,
+    load_result,
+    run_experiment,
+    run_prepare_check,
+    stop_orphaned_run,
+)
+from autoresearch.space import ValidationError
+from autoresearch.stopping import Budgets, closest_trigger, first_trigger, stop_gate
+from autoresearch.verdicts import verdict
+
+# Every proposals.jsonl record has exactly these keys, in this order.
+RECORD_KEYS = (
+    "iteration",
+    "time",
+    "proposer",
+    "status",
+    "reason",
+    "proposal",
+    "overrides",
+    "config",
+    "run_id",
+    "seed",
+    "metric",
+    "feasible",
+    "record",
+    "verdict",
+    "best_so_far",
+    "cost_usd",
+    "input_tokens",
+    "output_tokens",
+    "cumulative_cost_usd",
+    "elapsed_s",
+    "trigger",
+    "run_status",
+    "wall_seconds",
+    "returncode",
+    "interrupted_run_ids",
+)
+BASELINE_HYPOTHESIS = "the family's baseline configuration (the shared first experiment of every campaign)"
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    proposer_name: str
+    budgets: Budgets = field(default_factory=Budgets)
+    blind: bool = False
+    timeout_per_run: float = 3600.0
+    random_arm: Path | None = None
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """How :meth:`Orchestrator.run` ended: ``status`` is stopped, stop_accepted, prepare_failed or
+    already_finished (a resumed campaign that had ended and has nothing left to do)."""
+
+    status: str
+    trigger: str | None
+    reason: str
+    iterations: int
+    n_runs_ok: int
+    best: dict[str, Any] | None
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _jsonable(value: Any) -> Any:
+    """A JSON-clean copy of untrusted proposer output; what JSON cannot hold is kept as its repr."""
+    try:
+        return json.loads(json.dumps(value))
+    except (TypeError, ValueError):
+        return repr(value)
+
+
+def run_id_for(iteration: int, attempt: int = 1) -> str:
+    return f"it{iteration:04d}" + (f"-r{attempt}" if attempt > 1 else "")
+
+
+class Orchestrator:
+    def __init__(
+        self,
+        family: Family,
+        proposer: Proposer,
+        campaign_dir: str | Path,
+        settings: LoopSettings,
+        view: View | None = None,
+    ):
+        self.family = family
+        self.proposer = proposer
+        self.paths = CampaignPaths(Path(campaign_dir))
+        self.settings = settings
+        self.view = view or View()
+
+    # ----- set-up and resume -------------------------------------------------------------
+
+    def _open(self) -> None:
+        paths = self.paths
+        paths.runs_dir.mkdir(parents=True, exist_ok=True)
+        if paths.family_json.exists():
+            self.registry = read_json(paths.family_json)
+            if self.registry.get("name") != self.family.name:
+                raise ValueError(f"{paths.family_json} belongs to family {self.registry.get('name')!r}")
+        else:
+            # The campaign's own copy: its best is this campaign's running best, not the family's.
+            self.registry = {**self.family.registry, "best": None}
+            write_json_atomic(paths.family_json, self.registry)
+        self.journal = Journal(paths.proposals)
+        repair_torn_tail(paths.runs_log)
+        self.state = CampaignState.from_records(self.family, self.journal.read())
+        for record in self.state.records:
+            if record["status"] in ("ran", "failed"):
+                ok = record["status"] == "ran"
+                self.proposer.tell(
+                    record["config"], record["metric"] if ok else None, bool(ok and record["feasible"])
+                )
+        self._sync_best()
+        self._elapsed_base, self._started = self.state.elapsed_s, time.monotonic()
+        arm = self.settings.random_arm
+        self.random_summary = summarize_random_arm(arm, self.family) if arm else None
+
+    def elapsed(self) -> float:
+        """Seconds the loop has been running, summed over this campaign's sessions."""
+        return self._elapsed_base + time.monotonic() - self._started
+
+    def _sync_best(self) -> None:
+        best = self.state.best
+        entry = None
+        if best is not None:
+            entry = {
+                "config": best["config"],
+                "metric": best["metric"],
+                "std": None,
+                "n": 1,
+                "source": f"loop:{best['run_id']}",
+                "run_id": best["run_id"],
+                "iteration": best["iteration"],
+            }
+        if self.registry.get("best") != entry:
+            self.registry = {**self.registry, "best": entry}
+            write_json_atomic(self.paths.family_json, self.registry)
+
+    def _pending_intents(self) -> list[dict[str, Any]]:
+        """Intents of runs that started but whose iteration was never recorded."""
+        pending = []
+        for run_dir in sorted(self.paths.runs_dir.iterdir()):
+            if (run_dir / "intent.json").exists() and not (run_dir / "interrupted.json").exists():
+                intent = read_json(run_dir / "intent.json")
+                if intent["run_id"] not in self.state.run_ids:
+                    pending.append(intent)
+        return pending
+
+    def _adopt(self, intent: dict[str, Any]) -> RunResult | None:
+        """The outcome of an in-flight run whose supervisor died, if it finished; None otherwise."""
+        run_dir = self.paths.run_dir(intent["run_id"])
+        stop_orphaned_run(run_dir)
+        result = load_result(run_dir)
+        if result is not None:
+            return result
+        for line in read_jsonl(self.paths.runs_log):
+            if isinstance(line, dict) and line.get("run_id") == intent["run_id"]:
+                value, reason = check_record(line, self.family.metric, intent["run_id"])
+                if reason is not None:
+                    return RunResult("failed", intent["run_id"], None, reason, None, None)
+                return RunResult("ok", intent["run_id"], line, None, None, None, value)
+        return None
+
+    def _mark_interrupted(self, intent: dict[str, Any], why: str) -> None:
+        write_json_atomic(
+            self.paths.run_dir(intent["run_id"]) / "interrupted.json", {"time": _now(), "reason": why}
+        )
+
+    def _recover(self) -> dict[str, Any] | None:
+        """Finish an in-flight iteration from its outcome; return its intent when it must be re-run.
+
+        Several intents can be pending only after a crash during a re-run: the latest attempt
+        of the next iteration is the live one, any other is marked superseded.
+        """
+        pending = self._pending_intents()
+        current = [i for i in pending if i["iteration"] == self.state.iterations + 1]
+        latest = max(current, key=lambda i: len(i["interrupted_run_ids"]), default=None)
+        for intent in pending:
+            if intent is not latest:
+                stop_orphaned_run(self.paths.run_dir(intent["run_id"]))
+                self._mark_interrupted(intent, "superseded by a later attempt or record of its iteration")
+        if latest is None:
+            return None
+        result = self._adopt(latest)
+        if result is None:
+            return latest
+        self._finish_run(latest, result)
+        return None
+
+    # ----- the loop ----------------------------------------------------------------------
+
+    def run(self) -> Outcome:
+        try:
+            return self._run()
+        finally:
+            self.view.close()
+
+    def _run(self) -> Outcome:
+        self._open()
+        state, budgets = self.state, self.settings.budgets
+        if state.finished:
+            trigger = first_trigger(state, budgets, self.elapsed())
+            if state.last["status"] == "stop_accepted" or trigger is not None:
+                return self._outcome("already_finished", state.last["trigger"], state.last["reason"])
+        rerun = self._recover()
+        problem = run_prepare_check(self.family)
+        if problem is not None:
+            if rerun is not None:
+                self._mark_interrupted(rerun, "not re-run: prepare.py --check failed on resume")
+            self._stop("prepare_check", problem)
+            return self._outcome("prepare_failed", "prepare_check", problem)
+        if rerun is not None:
+            self._rerun(rerun)
+        while True:
+            trigger = first_trigger(state, budgets, self.elapsed())
+            if trigger is not None:
+                self._stop(trigger.name, trigger.message)
+                return self._outcome("stopped", trigger.name, trigger.message)
+            self._iteration()
+            if state.finished:
+                return self._outcome(state.last["status"], state.last["trigger"], state.last["reason"])
+
+    def _stop(self, trigger: str, reason: str) -> None:
+        name = self.settings.proposer_name
+        self._commit(
+            self._record(self.state.iterations + 1, name, status="stopped", trigger=trigger, reason=reason)
+        )
+
+    def _outcome(self, status: str, trigger: str | None, reason: str) -> Outcome:
+        s = self.state
+        return Outcome(status, trigger, reason, s.iterations, s.n_runs_ok, s.best)
+
+    def _ask(self) -> tuple[str, Proposal]:
+        state = self.state
+        if state.n_runs_attempted == 0:
+            return BASELINE_PROPOSER, Proposal(kind="propose", annotation={"hypothesis": BASELINE_HYPOTHESIS})
+        blind = self.settings.blind
+        budget = closest_trigger(state, self.settings.budgets, self.elapsed(), blind)
+        context = build_context(
+            state,
+            registry=self.registry,
+            blind=blind,
+            extra_warnings=(f"Budget: {budget}",),
+            random_arm_summary=self.random_summary,
+        )
+        name = self.settings.proposer_name
+        try:
+            proposal = self.proposer.propose(context)
+        except Exception as err:  # a proposer bug or API outage is an invalid iteration, not a crash
+            return name, Proposal(kind="invalid", error=f"the proposer raised {type(err).__name__}: {err}")
+        if not isinstance(proposal, Proposal):
+            return name, Proposal(
+                kind="invalid", error=f"the proposer returned {type(proposal).__name__}, not a Proposal"
+            )
+        return name, proposal
+
+    def _iteration(self) -> None:
+        state = self.state
+        iteration = state.iterations + 1
+        self.view.iteration_started(iteration)
+        proposer, proposal = self._ask()
+        self.view.proposal(iteration, proposer, proposal)
+        base = {
+            "proposal": {
+                "kind": _jsonable(proposal.kind),
+                "overrides": _jsonable(proposal.overrides),
+                "annotation": _jsonable(proposal.annotation),
+                "error": _jsonable(proposal.error),
+            },
+            "cost_usd": proposal.usage.cost_usd,
+            "input_tokens": proposal.usage.input_tokens,
+            "output_tokens": proposal.usage.output_tokens,
+        }
+
+        def record(status: str, reason: str, **fields: Any) -> None:
+            self._commit(self._record(iteration, proposer, status=status, reason=reason, **base, **fields))
+
+        if proposal.kind == "stop":
+            annotation = proposal.annotation if isinstance(proposal.annotation, dict) else {}
+            accepted, why = stop_gate(annotation, state)
+            if accepted:
+                record("stop_accepted", why, trigger="stop_research")
+            else:
+                record("stop_rejected", why)
+            return
+        if proposal.kind != "propose":
+            record("invalid", proposal.error or f"the proposer returned a proposal of kind {proposal.kind!r}")
+            return
+        try:
+            overrides = self.family.space.validate(proposal.overrides)
+        except ValidationError as err:
+            record("invalid", str(err))
+            return
+        config = {**state.current_values(), **overrides}
+        if not overrides and proposer != BASELINE_PROPOSER:
+            why = "the override map is empty: it changes nothing"
+        else:
+            why = state.seen_at(overrides, config)
+        if why is not None:
+            record("invalid", why, overrides=overrides, config=config)
+            return
+        intent = self._record(
+            iteration,
+            proposer,
+            overrides=overrides,
+            config=config,
+            run_id=run_id_for(iteration),
+            seed=self.family.default_seed,
+            interrupted_run_ids=[],
+            **base,
+        )
+        self._start(intent)
+
+    def _start(self, intent: dict[str, Any], supersedes: dict[str, Any] | None = None) -> None:
+        run_dir = self.paths.run_dir(intent["run_id"])
+        run_dir.mkdir(parents=True, exist_ok=True)  # a dir left empty by a crash before its intent is reused
+        if (run_dir / "intent.json").exists():
+            raise CampaignError(f"{run_dir} already holds a run")
+        write_json_atomic(run_dir / "intent.json", intent)
+        if supersedes is not None:  # only once the new attempt is durable
+            self._mark_interrupted(supersedes, f"the loop died during this run; re-run as {intent['run_id']}")
+        self.view.run_started(intent["run_id"])
+        result = run_experiment(
+            self.family,
+            intent["config"],
+            run_id=intent["run_id"],
+            seed=intent["seed"],
+            run_dir=run_dir,
+            runs_log=self.paths.runs_log,
+            timeout=self.settings.timeout_per_run,
+            on_progress=self.view.run_progress,
+        )
+        self._finish_run(intent, result)
+
+    def _rerun(self, intent: dict[str, Any]) -> None:
+        lost = [*intent["interrupted_run_ids"], intent["run_id"]]
+        retry = {
+            **intent,
+            "run_id": run_id_for(intent["iteration"], len(lost) + 1),
+            "interrupted_run_ids": lost,
+        }
+        self._start(retry, supersedes=intent)
+
+    def _finish_run(self, intent: dict[str, Any], result: RunResult) -> None:
+        state, family = self.state, self.family
+        fields: dict[str, Any] = {
+            "run_status": result.status,
+            "wall_seconds": result.wall_seconds,
+            "returncode": result.returncode,
+            "run_id": result.run_id,
+        }
+        if result.ok:
+            feasible = family.is_feasible(result.record)
+            if intent["proposer"] == BASELINE_PROPOSER:
+                judged = "baseline"
+            elif not feasible:
+                judged = "infeasible"
+            elif state.best_metric is None:
+                judged = "no prior best"
+            else:
+                judged = verdict(result.metric, state.best_metric, family.direction, family.sigma)
+            fields.update(
+                status="ran", metric=result.metric, feasible=feasible, record=result.record, verdict=judged
+            )
+        else:
+            fields.update(status="failed", reason=result.reason)
+        record = {**intent, **fields}
+        record["best_so_far"] = state.best_after(record["metric"], record["feasible"])
+        self._commit(record)
+        ok = result.ok
+        self.proposer.tell(record["config"], result.metric if ok else None, bool(ok and record["feasible"]))
+        self._sync_best()
+
+    def _record(self, iteration: int, proposer: str, **fields: Any) -> dict[str, Any]:
+        record = dict.fromkeys(RECORD_KEYS)
+        record.update(iteration=iteration, proposer=proposer, best_so_far=self.state.best_metric, **fields)
+        return record
+
+    def _commit(self, record: dict[str, Any]) -> None:
+        """Append one iteration's record (durably) and fold it into the state."""
+        state = self.state
+        record["time"] = _now()
+        record["cost_usd"] = record["cost_usd"] or 0.0
+        record["input_tokens"] = record["input_tokens"] or 0
+        record["output_tokens"] = record["output_tokens"] or 0
+        record["cumulative_cost_usd"] = state.cost_usd + record["cost_usd"]
+        record["elapsed_s"] = round(self.elapsed(), 3)
+        self.journal.append(record)
+        state.apply(record)
+        self.view.record(record, closest_trigger(state, self.settings.budgets, self.elapsed()))

@@ -1,0 +1,50 @@
+"""The key-free random-search arm (paper Eq. randsearch): iid draws from the per-axis laws."""
+
+from __future__ import annotations
+
+import random
+from typing import Any
+
+from autoresearch.proposers.base import Proposal, Proposer, ProposerContext
+from autoresearch.space import SearchSpace, canonical_key
+
+MAX_DRAWS = 1000
+
+
+def seen_configs(context: ProposerContext) -> set[str]:
+    return {canonical_key(item["config"]) for item in context.history}
+
+
+def full_config_proposal(
+    space: SearchSpace, config: dict[str, Any], context: ProposerContext, hypothesis: str
+) -> Proposal:
+    """A proposal of a whole configuration, annotated with the axes it moves off the current values."""
+    changed = [k for k in config if config[k] != context.current_values.get(k)]
+    return Proposal(
+        kind="propose",
+        overrides=config,
+        annotation={"hypothesis": hypothesis, "axes": sorted(space.axes_of(changed))},
+    )
+
+
+class RandomProposer(Proposer):
+    """Samples a full configuration each turn, skipping configurations already run.
+
+    Iteration ``i`` draws from its own stream seeded by (seed, i), so a resumed campaign draws
+    exactly what an uninterrupted one would have.
+    """
+
+    name = "random"
+
+    def __init__(self, registry: dict[str, Any], seed: int = 0):
+        self.space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
+        self.seed = seed
+
+    def propose(self, context: ProposerContext) -> Proposal:
+        rng = random.Random(f"random-search:{self.seed}:{context.iteration}")
+        seen = seen_configs(context)
+        for _ in range(MAX_DRAWS):
+            config = self.space.sample(rng)
+            if canonical_key(config) not in seen:
+                return full_config_proposal(self.space, config, context, "random sample (Eq. randsearch)")
+        return Proposal(kind="invalid", error=f"no unseen configuration in {MAX_DRAWS} random draws")

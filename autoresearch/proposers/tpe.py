@@ -1,0 +1,100 @@
+"""A key-free TPE arm: Optuna's TPESampler over the family's search space, ask/tell in memory.
+
+Each turn a fresh in-memory study is filled with every outcome told so far and asked once,
+with the sampler seeded by (seed, number of outcomes, attempt). The proposal is therefore a
+pure function of the seed and the history: a resumed campaign, which tells the history again,
+asks exactly what an uninterrupted one would have.
+
+Outcomes: a successful feasible run is a COMPLETE trial with its metric; a successful but
+infeasible run is a COMPLETE trial with its metric and a violated constraint, which Optuna's TPE
+ranks below every feasible trial (penalised, yet its location still informs the model); a
+failed or timed-out run is a FAIL trial, which TPE ignores. TPE searches the full declared
+bounds (a parameter's ``random_range`` is for the random arm only).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import random
+from typing import Any
+
+import optuna
+from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
+from optuna.trial import FrozenTrial, TrialState
+
+from autoresearch.proposers.base import Proposal, Proposer, ProposerContext
+from autoresearch.proposers.random_search import MAX_DRAWS, full_config_proposal, seen_configs
+from autoresearch.space import ParamSpec, SearchSpace, canonical_key
+
+MAX_ASKS = 20  # re-asks with a new seed when TPE suggests a configuration already run
+
+
+def _distribution(param: ParamSpec) -> BaseDistribution:
+    if param.type == "int":
+        return IntDistribution(int(param.low), int(param.high) - (1 if param.high_exclusive else 0))
+    if param.type in ("real", "log-real"):
+        high = math.nextafter(param.high, param.low) if param.high_exclusive else param.high
+        return FloatDistribution(float(param.low), float(high), log=param.type == "log-real")
+    if param.type == "bool":
+        return CategoricalDistribution((False, True))
+    return CategoricalDistribution(tuple(param.choices or ()))
+
+
+def _derived_seed(*parts: Any) -> int:
+    digest = hashlib.sha256(":".join(map(str, parts)).encode()).digest()
+    return int.from_bytes(digest[:4], "big")
+
+
+class TPEProposer(Proposer):
+    name = "tpe"
+
+    def __init__(self, registry: dict[str, Any], seed: int = 0, n_startup_trials: int = 10):
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        self.space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
+        self.study_direction = registry["direction"]
+        self.seed = seed
+        self.n_startup_trials = n_startup_trials
+        self.distributions = {name: _distribution(p) for name, p in self.space.params.items()}
+        self.trials: list[FrozenTrial] = []
+
+    def tell(self, overrides: dict[str, Any], metric: float | None, feasible: bool) -> None:
+        """``overrides`` is the full configuration that ran."""
+        params = self.space.validate_full(overrides)
+        if metric is None:
+            trial = optuna.trial.create_trial(
+                state=TrialState.FAIL, params=params, distributions=self.distributions
+            )
+        else:
+            trial = optuna.trial.create_trial(
+                value=metric,
+                params=params,
+                distributions=self.distributions,
+                constraints={"feasible": 0.0 if feasible else 1.0},
+            )
+        self.trials.append(trial)
+
+    def _ask(self, attempt: int) -> dict[str, Any]:
+        sampler = optuna.samplers.TPESampler(
+            seed=_derived_seed("tpe", self.seed, len(self.trials), attempt),
+            n_startup_trials=self.n_startup_trials,
+        )
+        study = optuna.create_study(direction=self.study_direction, sampler=sampler)
+        study.add_trials(self.trials)
+        return self.space.validate_full(study.ask(self.distributions).params)
+
+    def propose(self, context: ProposerContext) -> Proposal:
+        seen = seen_configs(context)
+        for attempt in range(MAX_ASKS):
+            config = self._ask(attempt)
+            if canonical_key(config) not in seen:
+                hypothesis = f"TPE suggestion after {len(self.trials)} observations"
+                return full_config_proposal(self.space, config, context, hypothesis)
+        # TPE keeps landing on known points (a small discrete space): fall back to an unseen random draw.
+        rng = random.Random(_derived_seed("tpe-fallback", self.seed, len(self.trials)))
+        for _ in range(MAX_DRAWS):
+            config = self.space.sample(rng)
+            if canonical_key(config) not in seen:
+                hypothesis = "random draw: TPE suggested only configurations already run"
+                return full_config_proposal(self.space, config, context, hypothesis)
+        return Proposal(kind="invalid", error="no unseen configuration found by TPE or random draws")

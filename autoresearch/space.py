@@ -1,0 +1,240 @@
+"""The configuration space of a family (paper Eq. config-space) and its validation.
+
+Every value a proposer suggests passes through :meth:`SearchSpace.validate` before anything is
+written or run. Validation is strict on purpose: a proposer's output is untrusted text, so a
+value is accepted only if it already has the declared Python type (``True`` is not an int,
+``"1e-3"`` is not a number) and lies inside the declared domain. The validated value is put into
+a canonical form so that equal configurations compare equal for deduplication.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+PARAM_TYPES = ("int", "real", "log-real", "categorical", "bool")
+NUMERIC_TYPES = ("int", "real", "log-real")
+
+
+class SpaceError(ValueError):
+    """The search space declared in family.json is malformed."""
+
+
+class ValidationError(ValueError):
+    """A proposed value or override map is refused; the message says why."""
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _describe(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One editable hyperparameter: its type, domain, axis and optional random-search sub-range."""
+
+    name: str
+    type: str
+    axis: str
+    low: float | None = None
+    high: float | None = None
+    high_exclusive: bool = False
+    choices: tuple[Any, ...] | None = None
+    random_range: Mapping[str, Any] | None = None
+
+    @classmethod
+    def from_json(cls, name: str, spec: Any, axes: tuple[str, ...]) -> ParamSpec:
+        where = f"search_space[{name!r}]"
+        if not name.isidentifier():
+            raise SpaceError(f"{where}: the name must be a Python identifier")
+        if not isinstance(spec, dict):
+            raise SpaceError(f"{where} must be an object")
+        kind = spec.get("type")
+        if kind not in PARAM_TYPES:
+            raise SpaceError(f"{where}: 'type' must be one of {', '.join(PARAM_TYPES)}, got {kind!r}")
+        axis = spec.get("axis")
+        if axis not in axes:
+            raise SpaceError(f"{where}: 'axis' must be one of the family's axes {list(axes)}, got {axis!r}")
+        allowed = {"type", "axis", "random_range"}
+        fields: dict[str, Any] = {}
+        if kind in NUMERIC_TYPES:
+            allowed |= {"low", "high", "high_exclusive"}
+            low, high = spec.get("low"), spec.get("high")
+            if not (_is_number(low) and _is_number(high) and math.isfinite(low) and math.isfinite(high)):
+                raise SpaceError(f"{where}: 'low' and 'high' must be finite numbers")
+            if kind == "int" and not (isinstance(low, int) and isinstance(high, int)):
+                raise SpaceError(f"{where}: an int parameter needs integer 'low' and 'high'")
+            if kind == "log-real" and low <= 0:
+                raise SpaceError(f"{where}: a log-real parameter needs 'low' > 0")
+            exclusive = spec.get("high_exclusive", False)
+            if not isinstance(exclusive, bool):
+                raise SpaceError(f"{where}: 'high_exclusive' must be true or false")
+            if not (low < high or (low == high and not exclusive)):
+                raise SpaceError(f"{where}: the domain [{low}, {high}{')' if exclusive else ']'} is empty")
+            fields = {"low": low, "high": high, "high_exclusive": exclusive}
+        elif kind == "categorical":
+            allowed.add("choices")
+            choices = spec.get("choices")
+            if not isinstance(choices, list) or not choices:
+                raise SpaceError(f"{where}: a categorical parameter needs a non-empty 'choices' list")
+            for choice in choices:
+                if not (isinstance(choice, str) or (_is_number(choice) and math.isfinite(choice))):
+                    raise SpaceError(f"{where}: choices must be strings or finite numbers, got {choice!r}")
+            if len({json.dumps(c) for c in choices}) != len(choices):
+                raise SpaceError(f"{where}: choices must be distinct")
+            fields = {"choices": tuple(choices)}
+        unknown = sorted(set(spec) - allowed)
+        if unknown:
+            raise SpaceError(f"{where}: unknown field(s) {unknown} for type {kind!r}")
+        param = cls(name=name, type=kind, axis=axis, random_range=spec.get("random_range"), **fields)
+        if param.random_range is not None:
+            param._check_random_range()
+        return param
+
+    def _check_random_range(self) -> None:
+        where = f"search_space[{self.name!r}].random_range"
+        rr = self.random_range
+        if not isinstance(rr, dict):
+            raise SpaceError(f"{where} must be an object")
+        if self.type in NUMERIC_TYPES:
+            if set(rr) != {"low", "high"}:
+                raise SpaceError(f"{where}: a numeric parameter's sub-range is {{'low', 'high'}}")
+            try:
+                low, high = self.validate(rr["low"]), self.validate(rr["high"])
+            except ValidationError as err:
+                raise SpaceError(f"{where}: {err}") from None
+            if low > high:
+                raise SpaceError(f"{where}: low > high")
+        else:
+            choices = rr.get("choices")
+            if set(rr) != {"choices"} or not isinstance(choices, list) or not choices:
+                raise SpaceError(f"{where}: a {self.type} parameter's sub-range is {{'choices': [...]}}")
+            for choice in choices:
+                try:
+                    self.validate(choice)
+                except ValidationError as err:
+                    raise SpaceError(f"{where}: {err}") from None
+
+    def bounds_text(self) -> str:
+        if self.type in NUMERIC_TYPES:
+            return f"[{self.low}, {self.high}{')' if self.high_exclusive else ']'}"
+        if self.type == "bool":
+            return "true or false"
+        return "one of " + ", ".join(repr(c) for c in self.choices or ())
+
+    def validate(self, value: Any) -> Any:
+        """The canonical form of ``value``, or :class:`ValidationError` saying why it is refused."""
+        name = self.name
+        if self.type == "bool":
+            if not isinstance(value, bool):
+                raise ValidationError(f"{name}: expected true or false, got {_describe(value)}")
+            return value
+        if self.type == "categorical":
+            if isinstance(value, str) or _is_number(value):
+                for choice in self.choices or ():
+                    # A string never equals a number here, and 64.0 maps onto the choice 64.
+                    if isinstance(choice, str) == isinstance(value, str) and choice == value:
+                        return choice
+            raise ValidationError(f"{name}: {_describe(value)} is not {self.bounds_text()}")
+        if not _is_number(value):
+            kind = "an integer" if self.type == "int" else "a number"
+            raise ValidationError(f"{name}: expected {kind}, got {type(value).__name__} {_describe(value)}")
+        if not math.isfinite(value):
+            raise ValidationError(f"{name}: {value!r} is not finite")
+        if self.type == "int":
+            if isinstance(value, float) and not value.is_integer():
+                raise ValidationError(f"{name}: expected an integer, got {value!r}")
+            value = int(value)
+        else:
+            value = float(value) + 0.0  # + 0.0 folds -0.0 into 0.0
+        assert self.low is not None and self.high is not None
+        above = value >= self.high if self.high_exclusive else value > self.high
+        if value < self.low or above:
+            raise ValidationError(f"{name}: {value!r} is outside {self.bounds_text()}")
+        return value
+
+    def sample(self, rng: random.Random) -> Any:
+        """One draw from this axis's law (paper Eq. randsearch), over ``random_range`` if declared."""
+        rr = self.random_range or {}
+        if self.type in ("categorical", "bool"):
+            choices = rr.get("choices") or (self.choices if self.type == "categorical" else (False, True))
+            return self.validate(rng.choice(list(choices)))
+        low, high = rr.get("low", self.low), rr.get("high", self.high)
+        exclusive = self.high_exclusive and high == self.high
+        if self.type == "int":
+            return rng.randint(int(low), int(high) - 1 if exclusive else int(high))
+        while True:
+            if self.type == "log-real":
+                value = math.exp(rng.uniform(math.log(low), math.log(high)))
+            else:
+                value = rng.uniform(low, high)
+            value = min(max(value, low), high)  # exp/log round-off can step just outside
+            if not (exclusive and value >= high):
+                return self.validate(value)
+
+
+class SearchSpace:
+    """The product of the family's parameter domains, in family.json order."""
+
+    def __init__(self, params: list[ParamSpec]):
+        self.params: dict[str, ParamSpec] = {p.name: p for p in params}
+
+    @classmethod
+    def from_json(cls, search_space: Any, axes: tuple[str, ...]) -> SearchSpace:
+        if not isinstance(search_space, dict) or not search_space:
+            raise SpaceError("'search_space' must be a non-empty object")
+        return cls([ParamSpec.from_json(name, spec, axes) for name, spec in search_space.items()])
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.params)
+
+    def validate(self, overrides: Any) -> dict[str, Any]:
+        """Canonical {name: value} for an override map, or :class:`ValidationError` with every reason."""
+        if not isinstance(overrides, dict):
+            raise ValidationError(
+                f"overrides must be an object mapping names to values, got {_describe(overrides)}"
+            )
+        reasons, canonical = [], {}
+        unknown = [k for k in overrides if k not in self.params]
+        if unknown:
+            reasons.append(
+                f"unknown key(s) {', '.join(_describe(k) for k in unknown)}; "
+                f"the editable keys are {', '.join(self.params)}"
+            )
+        for name, param in self.params.items():
+            if name in overrides:
+                try:
+                    canonical[name] = param.validate(overrides[name])
+                except ValidationError as err:
+                    reasons.append(str(err))
+        if reasons:
+            raise ValidationError("; ".join(reasons))
+        return canonical
+
+    def validate_full(self, config: Any) -> dict[str, Any]:
+        """Like :meth:`validate`, and every parameter must be present."""
+        canonical = self.validate(config)
+        missing = [name for name in self.params if name not in canonical]
+        if missing:
+            raise ValidationError(f"missing value(s) for {', '.join(missing)}")
+        return canonical
+
+    def sample(self, rng: random.Random) -> dict[str, Any]:
+        return {name: param.sample(rng) for name, param in self.params.items()}
+
+    def axes_of(self, names: list[str] | set[str]) -> set[str]:
+        return {self.params[n].axis for n in names if n in self.params}
+
+
+def canonical_key(mapping: Mapping[str, Any]) -> str:
+    """A string equal for equal canonical maps (key order ignored); used for deduplication."""
+    return json.dumps(dict(sorted(mapping.items())), sort_keys=True, separators=(",", ":"))

@@ -1,0 +1,57 @@
+"""In-loop, single-seed judgements in units of noise (paper Eqs. perrun and plateau).
+
+``direction`` is sigma_dir: +1 when larger metric values are better, -1 when smaller are, so
+``direction * (a - b) > 0`` exactly when ``a`` is better than ``b``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+CONFIRMED, REGRESSED, WITHIN_NOISE = "confirmed", "regressed", "within noise"
+
+
+def noise_threshold(reference: float, sigma: float | None) -> float:
+    """The measured seed noise when there is one, else 5 % of the reference value (at least 1e-12)."""
+    if sigma is not None:
+        return sigma
+    return max(0.05 * abs(reference), 1e-12)
+
+
+def is_better(a: float, b: float | None, direction: int) -> bool:
+    return b is None or direction * (a - b) > 0
+
+
+def reaches_target(best: float | None, target: float | None, direction: int) -> bool:
+    """rho_t: the running best has reached the target."""
+    return best is not None and target is not None and direction * (best - target) >= 0
+
+
+def verdict(metric: float, prior_best: float, direction: int, sigma: float | None) -> str:
+    """Eq. perrun: confirmed / regressed / within noise relative to the prior best."""
+    threshold = noise_threshold(prior_best, sigma)
+    delta = direction * (metric - prior_best)
+    if delta >= threshold:
+        return CONFIRMED
+    if delta <= -threshold:
+        return REGRESSED
+    return WITHIN_NOISE
+
+
+def plateau(
+    runs: Sequence[tuple[float, bool]], direction: int, window: int, kappa: float, sigma: float | None
+) -> bool:
+    """Eq. plateau over successful runs given as (metric, feasible), oldest first.
+
+    True when none of the last ``window`` runs beats the best feasible run before the window by
+    ``kappa`` noise units. An infeasible run cannot beat anything. Without ``window`` runs and a
+    feasible run before them the predicate is false.
+    """
+    if window < 1 or len(runs) <= window:
+        return False
+    before = [m for m, feasible in runs[:-window] if feasible]
+    if not before:
+        return False
+    b_pre = max(before, key=lambda m: direction * m)
+    margin = kappa * noise_threshold(b_pre, sigma)
+    return all(not feasible or direction * (m - b_pre) < margin for m, feasible in runs[-window:])

@@ -1,0 +1,86 @@
+import itertools
+import json
+
+import pytest
+from loop_helpers import TOY_FAMILY
+
+from autoresearch.proposers import make_proposer
+from autoresearch.proposers.base import ProposerContext
+from autoresearch.proposers.random_search import RandomProposer
+from autoresearch.proposers.tpe import TPEProposer
+
+TINY = {
+    "direction": "maximize",
+    "axes": ["a", "b"],
+    "search_space": {
+        "FLAG": {"type": "bool", "axis": "a"},
+        "KIND": {"type": "categorical", "choices": ["x", "y"], "axis": "b"},
+    },
+}
+ALL_TINY = [{"FLAG": f, "KIND": k} for f, k in itertools.product([False, True], ["x", "y"])]
+
+
+def context(history, iteration=2):
+    return ProposerContext(
+        iteration=iteration,
+        warnings=(),
+        program="",
+        registry={},
+        random_arm_summary=None,
+        history=tuple({"config": c, "m": 0.0} for c in history),
+        current_values=ALL_TINY[0],
+    )
+
+
+@pytest.mark.parametrize("cls", [RandomProposer, TPEProposer])
+def test_never_repeats_a_seen_config_when_it_can_avoid_it(cls):
+    proposer = cls(TINY, seed=0)
+    for config in ALL_TINY[:3]:
+        proposer.tell(config, 1.0, True)
+    proposal = proposer.propose(context(ALL_TINY[:3]))
+    assert proposal.kind == "propose" and proposal.overrides == ALL_TINY[3]
+    proposer.tell(ALL_TINY[3], 1.0, True)
+    exhausted = proposer.propose(context(ALL_TINY))
+    assert exhausted.kind == "invalid" and "no unseen configuration" in exhausted.error
+
+
+def test_random_draws_depend_only_on_seed_and_iteration():
+    registry = json.loads((TOY_FAMILY / "family.json").read_text())
+    a, b = RandomProposer(registry, seed=4), RandomProposer(registry, seed=4)
+    first = a.propose(context([], iteration=2))
+    assert b.propose(context([], iteration=2)).overrides == first.overrides
+    assert a.propose(context([], iteration=3)).overrides != first.overrides
+    assert RandomProposer(registry, seed=5).propose(context([], iteration=2)).overrides != first.overrides
+    assert first.annotation["axes"]  # the axes it moves off the current values
+
+
+def test_tpe_observations_failures_and_infeasible_runs():
+    registry = json.loads((TOY_FAMILY / "family.json").read_text())
+    tpe = TPEProposer(registry, seed=1, n_startup_trials=2)
+    base = json.loads((TOY_FAMILY / "family.json").read_text())["baseline"]["config"]
+    tpe.tell(base, 0.8, True)
+    tpe.tell({**base, "EPOCHS": 0}, None, False)
+    tpe.tell({**base, "MOMENTUM": 0.99, "LEARNING_RATE": 0.05}, 0.5, False)
+    states = [t.state.name for t in tpe.trials]
+    assert states == ["COMPLETE", "FAIL", "COMPLETE"]
+    assert [t.constraints for t in tpe.trials if t.state.name == "COMPLETE"] == [
+        {"feasible": 0.0},
+        {"feasible": 1.0},
+    ]
+    history = [base, {**base, "EPOCHS": 0}, {**base, "MOMENTUM": 0.99, "LEARNING_RATE": 0.05}]
+    first = tpe.propose(context(history, iteration=4))
+    again = tpe.propose(context(history, iteration=4))
+    assert first.kind == "propose" and first.overrides == again.overrides  # a function of seed and history
+    assert set(first.overrides) == set(base)
+    with pytest.raises(ValueError):
+        tpe.tell({"EPOCHS": 3}, 1.0, True)  # tell() needs the full configuration
+
+
+def test_make_proposer():
+    registry = json.loads((TOY_FAMILY / "family.json").read_text())
+    assert isinstance(make_proposer("random", registry, seed=1), RandomProposer)
+    assert isinstance(make_proposer("tpe", registry, seed=1), TPEProposer)
+    with pytest.raises(ValueError, match="unknown proposer"):
+        make_proposer("grid", registry, seed=1)
+    with pytest.raises(ValueError, match="apply to LLM proposers"):
+        make_proposer("tpe", registry, seed=1, model="x")

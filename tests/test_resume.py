@@ -1,0 +1,188 @@
+"""Resume after a crash at any moment: no record lost, none duplicated, the same state rebuilt."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from loop_helpers import ScriptedProposer, copy_toy, run_loop
+
+from autoresearch import orchestrator
+from autoresearch.journal import read_json, read_jsonl
+from autoresearch.proposers.tpe import TPEProposer
+
+
+class Crash(BaseException):
+    """Stands in for kill -9: nothing after it runs."""
+
+
+def processes_under(root: Path) -> list[int]:
+    """Live processes whose working directory is inside ``root``."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if Path(os.readlink(entry / "cwd")).is_relative_to(root):
+                    found.append(int(entry.name))
+            except OSError:
+                continue
+    return found
+
+
+def check_trail(campaign: Path) -> list[dict]:
+    """The invariants that must hold after any sequence of crashes and resumes."""
+    records = read_jsonl(campaign / "proposals.jsonl")
+    assert [r["iteration"] for r in records] == list(range(1, len(records) + 1))
+    run_ids = [r["run_id"] for r in records if r["run_id"]]
+    assert len(run_ids) == len(set(run_ids))
+    lost = [i for r in records for i in (r["interrupted_run_ids"] or [])]
+    assert not set(lost) & set(run_ids)
+    logged = [r["run_id"] for r in read_jsonl(campaign / "runs.jsonl")]
+    assert len(logged) == len(set(logged))
+    assert sorted(logged) == sorted(r["run_id"] for r in records if r["status"] == "ran")
+    configs = [json.dumps(r["config"], sort_keys=True) for r in records if r["run_id"]]
+    assert len(configs) == len(set(configs))
+    for run_dir in (campaign / "runs").iterdir():
+        assert run_dir.name in run_ids or (run_dir / "interrupted.json").exists()
+    return records
+
+
+def test_kill_9_of_a_running_loop_then_resume(tmp_path):
+    toy, campaign = copy_toy(tmp_path), tmp_path / "c"
+    base = [sys.executable, "-m", "autoresearch", "loop", "--campaign", str(campaign)]
+    start = [
+        *base,
+        "--family",
+        str(toy),
+        "--proposer",
+        "random",
+        "--max-iters",
+        "10",
+        "--seed",
+        "1",
+        "--plain",
+    ]
+    resume = [*base, "--resume", "--plain"]
+    slow = {**os.environ, "TOY_SLEEP_S": "0.3"}
+
+    # Session 1: killed while a run is in flight (its train.py survives as an orphan).
+    proc = subprocess.Popen(start, env=slow, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        done = len(read_jsonl(campaign / "proposals.jsonl"))
+        if done >= 3 and (campaign / "runs" / f"it{done + 1:04d}" / "process.json").exists():
+            break
+        time.sleep(0.01)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert len(read_jsonl(campaign / "proposals.jsonl")) >= 3
+
+    # Session 2: resumed, then killed again at an arbitrary moment once it is under way.
+    proc = subprocess.Popen(resume, env=slow, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 30
+    while len(read_json(campaign / "campaign.json")["sessions"]) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.5)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+
+    # Session 3: resumed to the end.
+    done = subprocess.run(resume, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    records = check_trail(campaign)
+    assert len(records) == 11 and records[-1]["trigger"] == "max_iters"
+    assert records[0]["proposer"] == "baseline"
+    assert len(read_json(campaign / "campaign.json")["sessions"]) == 3
+    assert processes_under(campaign) == []  # no orphaned training process left behind
+
+
+def crash_during(monkeypatch, run_id: str, when: str) -> None:
+    """Make the loop die around the run ``run_id``: before it starts, or after it finished."""
+    real = orchestrator.run_experiment
+
+    def run_experiment(family, config, **kw):
+        if kw["run_id"] != run_id:
+            return real(family, config, **kw)
+        run_dir = kw["run_dir"]
+        if when == "before, orphan alive":
+            # A train.py that outlived its supervisor, still running in the run dir.
+            sleeper = subprocess.Popen(
+                [sys.executable, "-c", "import time; time.sleep(300)"], cwd=run_dir, start_new_session=True
+            )
+            (run_dir / "process.json").write_text(json.dumps({"pid": sleeper.pid}))
+        if when.startswith("after"):
+            real(family, config, **kw)
+            if when == "after, before result.json":
+                (run_dir / "result.json").unlink()
+        raise Crash
+
+    monkeypatch.setattr(orchestrator, "run_experiment", run_experiment)
+
+
+@pytest.mark.parametrize("when", ["after", "after, before result.json", "before", "before, orphan alive"])
+def test_an_iteration_in_flight_is_adopted_or_rerun(tmp_path, monkeypatch, when):
+    toy, campaign = copy_toy(tmp_path), tmp_path / "c"
+    crash_during(monkeypatch, "it0003", when)
+    with pytest.raises(Crash):
+        run_loop(toy, ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}]), campaign, max_iters=5)
+    monkeypatch.undo()
+    with open(campaign / "proposals.jsonl", "ab") as f:
+        f.write(b'{"iteration": 3, "status": "ra')  # and a torn line from a crash mid-append
+    resumed = ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 13}])
+    _, records = run_loop(toy, resumed, campaign, max_iters=5)
+    check_trail(campaign)
+    assert [r["status"] for r in records] == ["ran", "ran", "ran", "invalid", "ran", "stopped"]
+    third = records[2]
+    if when.startswith("after"):
+        assert third["run_id"] == "it0003" and third["interrupted_run_ids"] == []  # adopted
+    else:
+        assert third["run_id"] == "it0003-r2" and third["interrupted_run_ids"] == ["it0003"]  # re-run
+        assert (campaign / "runs" / "it0003" / "interrupted.json").exists()
+    assert third["config"]["EPOCHS"] == 12
+    # The rebuilt state remembers what ran before the crash.
+    assert records[3]["reason"] == "this override map was already run at iteration 2"
+    assert [t[0]["EPOCHS"] for t in resumed.tells] == [10, 11, 12, 13]
+    assert (campaign / "proposals.jsonl.torn").read_bytes() == b'{"iteration": 3, "status": "ra\n'
+    assert processes_under(campaign) == []
+
+
+def test_tpe_resumed_after_a_crash_asks_what_it_would_have(tmp_path, monkeypatch):
+    toy = copy_toy(tmp_path)
+    registry = json.loads((toy / "family.json").read_text())
+    _, straight = run_loop(
+        toy, TPEProposer(registry, seed=2), tmp_path / "straight", max_iters=12, plateau_window=50
+    )
+    crash_during(monkeypatch, "it0012", "before")
+    with pytest.raises(Crash):
+        run_loop(toy, TPEProposer(registry, seed=2), tmp_path / "crashed", max_iters=12, plateau_window=50)
+    monkeypatch.undo()
+    _, resumed = run_loop(
+        toy, TPEProposer(registry, seed=2), tmp_path / "crashed", max_iters=12, plateau_window=50
+    )
+    assert [r["config"] for r in resumed] == [r["config"] for r in straight]
+    assert [r["metric"] for r in resumed] == [r["metric"] for r in straight]
+
+
+def test_crash_windows_around_a_retry_and_before_an_intent(tmp_path, monkeypatch):
+    toy, campaign = copy_toy(tmp_path), tmp_path / "c"
+    crash_during(monkeypatch, "it0003", "before")
+    with pytest.raises(Crash):
+        run_loop(toy, ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}]), campaign, max_iters=5)
+    monkeypatch.undo()
+    # The loop died again right after writing the retry's intent, before marking it0003 interrupted.
+    intent = read_json(campaign / "runs" / "it0003" / "intent.json")
+    (campaign / "runs" / "it0003-r2").mkdir()
+    retry = {**intent, "run_id": "it0003-r2", "interrupted_run_ids": ["it0003"]}
+    (campaign / "runs" / "it0003-r2" / "intent.json").write_text(json.dumps(retry))
+    # ... and a crash between creating a run dir and writing its intent left it empty.
+    (campaign / "runs" / "it0004").mkdir()
+    _, records = run_loop(toy, ScriptedProposer([{"EPOCHS": 13}]), campaign, max_iters=5)
+    check_trail(campaign)
+    assert [r["run_id"] for r in records] == ["it0001", "it0002", "it0003-r3", "it0004", None, None]
+    assert records[2]["interrupted_run_ids"] == ["it0003", "it0003-r2"]
+    assert "superseded" in read_json(campaign / "runs" / "it0003" / "interrupted.json")["reason"]
+    assert "re-run as it0003-r3" in read_json(campaign / "runs" / "it0003-r2" / "interrupted.json")["reason"]
