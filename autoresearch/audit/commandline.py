@@ -1,0 +1,37 @@
+"""What the audit commands share: the execution flags and one error-to-exit-code policy."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+
+from autoresearch.audit.inputs import AuditError
+from autoresearch.campaign import CampaignError
+from autoresearch.executors import Executor, make_executor
+from autoresearch.family import FamilyError
+from autoresearch.journal import JournalError
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def run_command(name: str, args: argparse.Namespace, body: Callable[[Executor], None]) -> int:
+    """Run ``body`` with the executor the flags choose; errors become one line and exit code 2."""
+    try:
+        with make_executor(args) as executor:
+            body(executor)
+    except KeyboardInterrupt:
+        print(f"\nautoresearch {name}: interrupted; run the same command again to resume", file=sys.stderr)
+        return 130
+    except (AuditError, CampaignError, FamilyError, JournalError, RuntimeError, ValueError) as err:
+        print(f"autoresearch {name}: error: {err}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,81 @@
+"""What every audit step reads: the campaign, its family (fresh from disk), the seed noise."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from autoresearch.campaign import CampaignPaths
+from autoresearch.family import Family
+from autoresearch.journal import read_json, read_jsonl
+from autoresearch.space import canonical_key
+
+AUDIT_DIR = "audit"
+
+
+class AuditError(RuntimeError):
+    """An audit step cannot run; the message says what to do first."""
+
+
+def config_id(config: dict[str, Any]) -> str:
+    """A short, stable name for a configuration (run ids and resumption keys)."""
+    return hashlib.sha1(canonical_key(config).encode()).hexdigest()[:8]
+
+
+def changed_params(family: Family, config: dict[str, Any]) -> list[str]:
+    """The parameters ``config`` edits relative to the family defaults, in family.json order."""
+    baseline = family.baseline_config
+    return [name for name in family.space.names if config[name] != baseline[name]]
+
+
+def seed_noise(family: Family) -> dict[str, Any]:
+    noise = family.seed_noise
+    if not noise or not all(isinstance(noise.get(k), (int, float)) for k in ("mean", "std", "k")):
+        raise AuditError(
+            f"family {family.name!r} has no measured seed noise (mean, std, k) in {family.path / 'family.json'}; "
+            f"run `autoresearch noise --family {family.path}` first"
+        )
+    return noise
+
+
+@dataclass(frozen=True)
+class Campaign:
+    paths: CampaignPaths
+    meta: dict[str, Any]  # campaign.json
+    family: Family
+    records: list[dict[str, Any]]  # proposals.jsonl
+
+    @property
+    def root(self) -> Path:
+        return self.paths.root
+
+    def step_dir(self, step: str) -> Path:
+        return self.root / AUDIT_DIR / step
+
+    @property
+    def timeout(self) -> float:
+        """The campaign's per-experiment budget: every audit run gets the same."""
+        return float(self.meta["settings"]["timeout_per_run"])
+
+    @property
+    def ran(self) -> list[dict[str, Any]]:
+        return [r for r in self.records if r["status"] == "ran"]
+
+    def single_seed_best(self) -> dict[str, Any] | None:
+        """The campaign's best feasible run (a one-seed claim)."""
+        sign = self.family.direction
+        feasible = [r for r in self.ran if r["feasible"]]
+        return max(feasible, key=lambda r: (sign * r["metric"], -r["iteration"])) if feasible else None
+
+
+def open_campaign(campaign_dir: str | Path) -> Campaign:
+    paths = CampaignPaths(Path(campaign_dir).resolve())
+    if not paths.campaign_json.exists() or not paths.proposals.exists():
+        raise AuditError(f"{campaign_dir}: not a campaign directory (no campaign.json or proposals.jsonl)")
+    meta = read_json(paths.campaign_json)
+    family_dir = meta.get("family")
+    if not family_dir or not Path(family_dir).is_dir():
+        raise AuditError(f"{paths.campaign_json}: its family directory {family_dir!r} does not exist")
+    return Campaign(paths, meta, Family.load(family_dir), read_jsonl(paths.proposals))

@@ -1,0 +1,88 @@
+"""Measured seed noise (paper Eq. noisefloor): the baseline configuration over K fresh seeds.
+
+The result is a property of the family, so it is written into the family's own family.json
+(``seed_noise``), and also into a campaign's audit.json when the measurement is part of its
+audit. Runs are logged as they finish; a re-run skips the seeds already measured, and a larger
+``k`` extends the same seed list (the plan is deterministic).
+"""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from autoresearch.audit import stats
+from autoresearch.audit.auditjson import read_audit, set_family_field, write_step
+from autoresearch.audit.inputs import AuditError, Campaign
+from autoresearch.audit.seeds import fresh_seeds, used_seeds
+from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.executors import Executor
+from autoresearch.family import Family
+
+STEP = "noise"
+
+
+def default_noise_dir(family: Family) -> Path:
+    """Where a stand-alone measurement keeps its runs: never inside the family directory."""
+    return Path("runs") / f"noise-{family.name}"
+
+
+def measure_noise(
+    family: Family,
+    executor: Executor,
+    *,
+    k: int = 10,
+    campaign: Campaign | None = None,
+    out_dir: Path | None = None,
+    timeout: float = 3600.0,
+) -> dict[str, Any]:
+    """Run the baseline at ``k`` fresh seeds; write and return the family's ``seed_noise``."""
+    if k < 2:
+        raise AuditError(f"--seeds {k}: seed noise needs K >= 2 seeds (one run has no spread to measure)")
+    if campaign is not None:
+        root, timeout = campaign.step_dir(STEP), campaign.timeout
+        used = used_seeds(family.default_seed, None, [campaign.root], skip_step=STEP)
+    else:
+        root, used = (out_dir or default_noise_dir(family)), {family.default_seed}
+    seeds = fresh_seeds(used, k)
+    if campaign is not None:
+        write_step(campaign.root, STEP, {"status": "running", "seeds": seeds, "runs_dir": str(root)})
+    baseline = family.baseline_config
+    trials = [Trial(f"noise-s{seed}", baseline, seed) for seed in seeds]
+    rows = run_trials(family, trials, executor, root / "noise.jsonl", root, timeout)
+    ok = [r for r in rows if r["status"] == "ok"]
+    failed = [{"seed": r["seed"], "reason": r["reason"]} for r in rows if r["status"] != "ok"]
+    if len(ok) < 2:
+        raise AuditError(
+            f"seed noise: only {len(ok)} of {k} baseline runs succeeded (K >= 2 needed); "
+            f"failures: {failed}; re-run to retry them"
+        )
+    floor = stats.noise_floor([r["metric"] for r in ok])
+    noise = {
+        "mean": floor.mean,
+        "std": floor.std,
+        "k": floor.k,
+        "seeds": [r["seed"] for r in ok],
+        "values": [r["metric"] for r in ok],
+        "n_feasible": sum(bool(r["feasible"]) for r in ok),
+        "metric": family.metric,
+        "measured_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "runs_dir": str(Path(root).resolve()),
+        "failed": failed,
+    }
+    set_family_field(family.path, "seed_noise", noise)
+    if campaign is not None:
+        write_step(campaign.root, STEP, {"status": "done", "source": "measured", **noise})
+    return noise
+
+
+def record_existing_noise(campaign: Campaign) -> dict[str, Any]:
+    """The audit's noise step when the family already has its seed noise: record, do not re-measure."""
+    noise = campaign.family.seed_noise
+    if not noise:
+        raise AuditError(f"family {campaign.family.name!r} has no seed noise to record")
+    recorded = read_audit(campaign.root).get(STEP) or {}
+    if {k: recorded.get(k) for k in noise} != noise:  # keep "measured" if this audit measured it
+        write_step(campaign.root, STEP, {"status": "done", "source": "family.json", **noise})
+    return noise

@@ -1,0 +1,262 @@
+"""The random-search arm (paper Eqs. randsearch and verdict): an external sanity check.
+
+The random proposer samples the same editable surface, starting from the same first
+experiment (the baseline at the family's default seed), with the campaign's per-experiment
+timeout and as many experiments as the campaign ran. Random draws ignore the history, so all of
+them are drawn up front (exactly the draws the loop would make: the proposer's stream depends
+only on its seed and the iteration) and run in parallel; the arm is then written as a normal
+campaign directory (campaign.json, proposals.jsonl, runs.jsonl, runs/) that reports and
+comparisons read like any other. Unlike the loop, the arm does not stop at the target: it is a
+best-of-N over all N draws.
+
+--matched-range narrows the training-budget axis to the range the campaign actually used (the
+paper's open limitation: the agent trained longer than the random sweep happened to sample).
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from autoresearch.audit import stats
+from autoresearch.audit.auditjson import write_step
+from autoresearch.audit.inputs import AuditError, Campaign
+from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.campaign import BASELINE_PROPOSER, CampaignPaths, CampaignState
+from autoresearch.executors import Executor
+from autoresearch.family import Family
+from autoresearch.journal import Journal, read_json, write_json_atomic
+from autoresearch.orchestrator import BASELINE_HYPOTHESIS, RECORD_KEYS, run_id_for
+from autoresearch.proposers.base import ProposerContext
+from autoresearch.proposers.random_search import RandomProposer
+from autoresearch.space import NUMERIC_TYPES
+from autoresearch.verdicts import verdict
+
+MATCHED_AXIS = "training_budget"
+PROPOSER = "random"
+
+
+def step_name(matched_range: bool) -> str:
+    """The audit.json key: a matched-range arm is kept beside the plain one."""
+    return "random_matched" if matched_range else "random"
+
+
+def default_arm_dir(campaign: Campaign, matched_range: bool) -> Path:
+    return campaign.root.parent / f"{campaign.root.name}-{step_name(matched_range).replace('_', '-')}"
+
+
+def campaign_count(campaign: Campaign) -> int:
+    """Experiments the campaign ran (successful or failed, the baseline included)."""
+    return sum(r["status"] in ("ran", "failed") for r in campaign.records)
+
+
+def matched_ranges(campaign: Campaign) -> dict[str, dict[str, Any]]:
+    """random_range of each training-budget parameter: the span of values the campaign ran."""
+    family, ranges = campaign.family, {}
+    for name, param in family.space.params.items():
+        if param.axis != MATCHED_AXIS:
+            continue
+        used = [r["config"][name] for r in campaign.records if r["status"] in ("ran", "failed")]
+        if param.type in NUMERIC_TYPES:
+            ranges[name] = {"low": min(used), "high": max(used)}
+        else:
+            ranges[name] = {"choices": list({json.dumps(v): v for v in used}.values())}
+    if not ranges:
+        raise AuditError(
+            f"--matched-range: family {family.name!r} has no parameter on the {MATCHED_AXIS!r} axis"
+        )
+    return ranges
+
+
+def draw_configs(family: Family, registry: dict[str, Any], seed: int, count: int) -> list[dict[str, Any]]:
+    """The baseline, then the random proposer's draws for iterations 2..count."""
+    proposer = RandomProposer(registry, seed)
+    baseline = family.baseline_config
+    configs = [baseline]
+    for iteration in range(2, count + 1):
+        context = ProposerContext(
+            iteration=iteration,
+            warnings=(),
+            program="",
+            registry=registry,
+            random_arm_summary=None,
+            history=tuple({"config": c} for c in configs),
+            current_values=baseline,
+        )
+        proposal = proposer.propose(context)
+        if proposal.kind != "propose":  # the space ran out of unseen configurations
+            break
+        configs.append(family.space.validate_full(proposal.overrides))
+    return configs
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _record(family: Family, state: CampaignState, iteration: int, config: dict, row: dict) -> dict[str, Any]:
+    """One proposals.jsonl record, as the loop writes it for a run."""
+    baseline = iteration == 1
+    annotation = {"hypothesis": BASELINE_HYPOTHESIS if baseline else "random sample (Eq. randsearch)"}
+    overrides = {} if baseline else config
+    record = dict.fromkeys(RECORD_KEYS)
+    record.update(
+        iteration=iteration,
+        time=_now(),
+        proposer=BASELINE_PROPOSER if baseline else PROPOSER,
+        proposal={"kind": "propose", "overrides": overrides, "annotation": annotation, "error": None},
+        overrides=overrides,
+        config=config,
+        run_id=row["run_id"],
+        seed=family.default_seed,
+        cost_usd=0.0,
+        input_tokens=0,
+        output_tokens=0,
+        cumulative_cost_usd=0.0,
+        elapsed_s=round(state.elapsed_s + (row["wall_seconds"] or 0.0), 3),  # run time, summed
+        run_status=row["status"],
+        wall_seconds=row["wall_seconds"],
+        returncode=row["returncode"],
+        interrupted_run_ids=[],
+    )
+    if row["status"] == "ok":
+        feasible = row["feasible"]
+        if baseline:
+            judged = "baseline"
+        elif not feasible:
+            judged = "infeasible"
+        elif state.best_metric is None:
+            judged = "no prior best"
+        else:
+            judged = verdict(row["metric"], state.best_metric, family.direction, family.sigma)
+        record.update(
+            status="ran", metric=row["metric"], feasible=feasible, record=row["record"], verdict=judged
+        )
+    else:
+        record.update(status="failed", reason=row["reason"])
+    record["best_so_far"] = state.best_after(record["metric"], record["feasible"])
+    return record
+
+
+def _summary_run(record: dict[str, Any] | None) -> dict[str, Any] | None:
+    return record and {k: record[k] for k in ("iteration", "run_id", "metric", "feasible", "config")}
+
+
+def run_random_arm(
+    campaign: Campaign,
+    executor: Executor,
+    *,
+    count: int | None = None,
+    matched_range: bool = False,
+    seed: int = 0,
+    out: Path | None = None,
+) -> dict[str, Any]:
+    """Run (or resume) the random arm of ``campaign``; write audit.json[random] and return it."""
+    family = campaign.family
+    count = count or campaign_count(campaign)
+    if count < 1:
+        raise AuditError(f"the random arm needs a count >= 1 (got {count})")
+    registry = json.loads(json.dumps(family.registry))
+    ranges = matched_ranges(campaign) if matched_range else None
+    for name, sub_range in (ranges or {}).items():
+        registry["search_space"][name]["random_range"] = sub_range
+    paths = CampaignPaths((out or default_arm_dir(campaign, matched_range)).resolve())
+    meta = {
+        "family": str(family.path),
+        "family_name": family.name,
+        "proposer": PROPOSER,
+        "settings": {
+            "timeout_per_run": campaign.timeout,
+            "seed": seed,
+            "count": count,
+            "budget_from": str(campaign.root),
+            "matched_range": ranges,
+        },
+    }
+    if paths.campaign_json.exists():  # resuming: only the very same arm
+        if read_json(paths.campaign_json) != meta:
+            raise AuditError(
+                f"{paths.root} holds a random arm with other settings; choose another --out or remove it"
+            )
+    else:
+        paths.root.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(paths.campaign_json, meta)
+    configs = draw_configs(family, registry, seed, count)
+    trials = [Trial(run_id_for(i), config, family.default_seed) for i, config in enumerate(configs, start=1)]
+    rows = run_trials(
+        family,
+        trials,
+        executor,
+        paths.root / "trials.jsonl",
+        paths.runs_dir,
+        campaign.timeout,
+        paths.runs_log,
+    )
+    journal = Journal(paths.proposals)
+    state = CampaignState.from_records(family, journal.read())
+    for iteration in range(state.iterations + 1, len(configs) + 1):
+        record = _record(family, state, iteration, configs[iteration - 1], rows[iteration - 1])
+        journal.append(record)
+        state.apply(record)
+    if not state.finished:
+        stop = dict.fromkeys(RECORD_KEYS)
+        reason = f"{len(configs)} experiments: the budget of {campaign.root.name}"
+        stop.update(
+            iteration=state.iterations + 1,
+            time=_now(),
+            proposer=PROPOSER,
+            status="stopped",
+            reason=reason,
+            trigger="max_iters",
+            best_so_far=state.best_metric,
+            cost_usd=0.0,
+            input_tokens=0,
+            output_tokens=0,
+            cumulative_cost_usd=0.0,
+            elapsed_s=state.elapsed_s,
+        )
+        journal.append(stop)
+        state.apply(stop)
+    return summarize(campaign, paths.root, state, matched_range, ranges, seed)
+
+
+def summarize(
+    campaign: Campaign,
+    arm_dir: Path,
+    state: CampaignState,
+    matched_range: bool,
+    ranges: dict[str, Any] | None,
+    seed: int,
+) -> dict[str, Any]:
+    """Eq. verdict in noise units, the strict-feasible fraction, and the arm's bests."""
+    family, sign = campaign.family, campaign.family.direction
+    ran = [r for r in state.records if r["status"] == "ran"]
+    best_any = max(ran, key=lambda r: sign * r["metric"]) if ran else None
+    best = next((r for r in ran if r["run_id"] == state.best["run_id"]), None) if state.best else None
+    agent = campaign.single_seed_best()
+    part: dict[str, Any] = {
+        "status": "done",
+        "dir": str(arm_dir),
+        "count": sum(r["status"] in ("ran", "failed") for r in state.records),
+        "seed": seed,
+        "matched_range": ranges if matched_range else None,
+        "n_ran": len(ran),
+        "n_failed": sum(r["status"] == "failed" for r in state.records),
+        "n_feasible": sum(bool(r["feasible"]) for r in ran),
+        "feasibility_field": family.feasibility_field,
+        "best": _summary_run(best),
+        "best_any": _summary_run(best_any),
+        "agent_best": agent and agent["metric"],
+        "verdict": None,
+        "units": None,
+    }
+    if family.sigma:
+        part["verdict"], part["units"] = stats.random_verdict(
+            part["agent_best"], best and best["metric"], family.sigma, sign
+        )
+    else:
+        part["verdict_note"] = "no measured seed noise: run `autoresearch noise` for the verdict"
+    write_step(campaign.root, step_name(matched_range), part)
+    return part

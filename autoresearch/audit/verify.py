@@ -1,0 +1,188 @@
+"""Reseeded verification (paper Eq. reseedgate) and promotion of the family best.
+
+The configurations are rebuilt from proposals.jsonl (each record carries the full config),
+deduplicated with the seed removed, ranked under the feasibility rule, and the top few are
+re-run at fresh seeds shared by all candidates (a paired design). A candidate passes when its
+reseeded mean clears the seed noise by m >= 2 and it is feasible on every valid reseed.
+
+Promotion rule: of the passing candidates, the most reproducible one is promoted, i.e. the one
+whose 95 % confidence interval of the reseeded mean has the best pessimistic end (for a
+minimized metric, the lowest upper bound). It may differ from the single-seed best: a lucky,
+erratic configuration loses to a tight one, as in both of the paper's campaigns.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from autoresearch.audit import stats
+from autoresearch.audit.auditjson import set_family_field, write_step
+from autoresearch.audit.inputs import Campaign, changed_params, config_id, seed_noise
+from autoresearch.audit.seeds import fresh_seeds, used_seeds
+from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.executors import Executor
+from autoresearch.family import Family
+
+STEP = "verify"
+
+
+def rank_candidates(campaign: Campaign, top: int) -> list[dict[str, Any]]:
+    """The ``top`` best distinct feasible configurations other than the baseline, each with the run
+    that produced it (its best run, were a configuration run more than once)."""
+    family, sign = campaign.family, campaign.family.direction
+    best: dict[str, dict[str, Any]] = {}
+    for record in campaign.ran:
+        if not record["feasible"] or not changed_params(family, record["config"]):
+            continue
+        cid = config_id(record["config"])
+        if cid not in best or sign * record["metric"] > sign * best[cid]["metric"]:
+            best[cid] = record
+    ranked = sorted(best.values(), key=lambda r: (-sign * r["metric"], r["iteration"]))[:top]
+    return [
+        {
+            "config_id": config_id(r["config"]),
+            "config": r["config"],
+            "changed": changed_params(family, r["config"]),
+            "source": {
+                "iteration": r["iteration"],
+                "run_id": r["run_id"],
+                "seed": r["seed"],
+                "metric": r["metric"],
+                "best_train_loss": (r.get("record") or {}).get("best_train_loss"),
+            },
+        }
+        for r in ranked
+    ]
+
+
+def assess(
+    rows: list[dict[str, Any]], source_loss: float | None, noise: dict[str, Any], sign: int
+) -> dict[str, Any]:
+    """Parity guard, then Eq. reseedgate and the Welch CI of the mean difference over the valid
+    reseeds. A reseed that failed to run fails the gate (re-running the step retries it)."""
+    reseeds, values, feasible = [], [], []
+    for row in rows:
+        excluded = None
+        if row["status"] != "ok":
+            excluded = f"run {row['status']}: {row['reason']}"
+        elif not stats.parity_guard(row["best_train_loss"], source_loss):
+            excluded = f"parity guard: best_train_loss {row['best_train_loss']:.4g} > 2 x {source_loss:.4g}"
+        else:
+            values.append(row["metric"])
+            feasible.append(bool(row["feasible"]))
+        reseeds.append(
+            {k: row[k] for k in ("seed", "run_id", "status", "metric", "feasible", "best_train_loss")}
+        )
+        reseeds[-1]["excluded"] = excluded
+    n_failed = sum(r["status"] != "ok" for r in rows)
+    out: dict[str, Any] = {
+        "reseeds": reseeds,
+        "n": len(values),
+        "n_failed": n_failed,
+        "n_parity_excluded": len(rows) - n_failed - len(values),
+        "n_feasible": sum(feasible),
+    }
+    if not values:
+        return {**out, "passed": False, "reason": "no valid reseeds"}
+    gate = stats.reseed_gate(values, feasible, noise["mean"], noise["std"], sign)
+    reasons = [] if gate.passed else [gate.reason]
+    if n_failed:
+        reasons.append(f"{n_failed} reseed(s) failed to run")
+    out.update(
+        mu_r=gate.mu_r,
+        sigma_r=gate.sigma_r,
+        margin=gate.margin,
+        all_feasible=gate.all_feasible,
+        passed=not reasons,
+        reason="; ".join(reasons) or "PASS",
+    )
+    if gate.sigma_r is not None:
+        out["bound"] = stats.reproducibility_bound(gate.mu_r, gate.sigma_r, gate.n, sign)
+        if noise["k"] >= 2:
+            d = stats.mean_difference_ci(
+                gate.mu_r, gate.sigma_r, gate.n, noise["mean"], noise["std"], noise["k"], sign
+            )
+            out.update(diff=d.diff, ci_low=d.low, ci_high=d.high)
+    return out
+
+
+def _replaces_family_best(family: Family, candidate: dict[str, Any], campaign: Campaign) -> tuple[bool, str]:
+    """A promotion replaces the family's best unless another campaign's best is more reproducible."""
+    current = family.registry.get("best")
+    if not current:
+        return True, "the family had no best"
+    source = current.get("source") or {}
+    if isinstance(source, dict) and source.get("campaign") == str(campaign.root):
+        return True, "replaces this campaign's earlier promotion"
+    if current.get("std") is None or (current.get("n") or 0) < 2:
+        return True, "the family's previous best was not reseeded"
+    sign = family.direction
+    old = stats.reproducibility_bound(current["metric"], current["std"], current["n"], sign)
+    if candidate["bound"] >= old:
+        return True, "more reproducible than the family's previous best"
+    return False, f"the family's best (from {source}) has the better bound ({sign * old:.4g})"
+
+
+def verify(campaign: Campaign, executor: Executor, *, top: int = 3, n_seeds: int = 10) -> dict[str, Any]:
+    """Reseed the top candidates, gate them, promote the most reproducible passing one."""
+    if top < 1:
+        raise ValueError(f"--top must be >= 1 (got {top})")
+    if n_seeds < 2:
+        raise ValueError(f"--seeds {n_seeds}: reseeded verification needs >= 2 seeds")
+    family, sign = campaign.family, campaign.family.direction
+    noise = seed_noise(family)
+    candidates = rank_candidates(campaign, top)
+    best_run = campaign.single_seed_best()
+    part: dict[str, Any] = {
+        "noise": {k: noise[k] for k in ("mean", "std", "k")},
+        "top": top,
+        "single_seed_best": None,
+        "candidates": candidates,
+        "promoted": None,
+    }
+    if best_run is not None:
+        part["single_seed_best"] = {"config_id": config_id(best_run["config"])} | {
+            k: best_run[k] for k in ("run_id", "iteration", "metric")
+        }
+    if not candidates:
+        part.update(
+            status="done", reason="no feasible configuration other than the baseline to verify", seeds=[]
+        )
+        write_step(campaign.root, STEP, part)
+        return part
+    used = used_seeds(family.default_seed, family.seed_noise, [campaign.root], skip_step=STEP)
+    part["seeds"] = fresh_seeds(used, n_seeds)
+    write_step(campaign.root, STEP, {**part, "status": "running"})
+    trials = [
+        Trial(f"verify-{c['config_id']}-s{s}", c["config"], s) for c in candidates for s in part["seeds"]
+    ]
+    root = campaign.step_dir(STEP)
+    rows = run_trials(family, trials, executor, root / "verify.jsonl", root, campaign.timeout)
+    for i, candidate in enumerate(candidates):
+        own = rows[i * n_seeds : (i + 1) * n_seeds]
+        candidate.update(assess(own, candidate["source"]["best_train_loss"], noise, sign))
+    passing = [c for c in candidates if c["passed"]]
+    if passing:
+        promoted = max(passing, key=lambda c: (c["bound"], sign * c["mu_r"]))
+        part["promoted"] = promoted["config_id"]
+        write, why = _replaces_family_best(family, promoted, campaign)
+        part["family_best"] = {"updated": write, "why": why}
+        if write:
+            set_family_field(
+                family.path,
+                "best",
+                {
+                    "config": promoted["config"],
+                    "metric": promoted["mu_r"],
+                    "std": promoted["sigma_r"],
+                    "n": promoted["n"],
+                    "source": {
+                        "campaign": str(campaign.root),
+                        "run_id": promoted["source"]["run_id"],
+                        "step": STEP,
+                    },
+                },
+            )
+    part.update(status="done", reason=f"{len(passing)} of {len(candidates)} candidate(s) passed the gate")
+    write_step(campaign.root, STEP, part)
+    return part

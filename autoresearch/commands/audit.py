@@ -1,0 +1,68 @@
+"""``autoresearch audit``: the whole credibility audit of a campaign, step by step, then its report."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from autoresearch.audit.commandline import positive_int, run_command
+from autoresearch.audit.inputs import open_campaign
+from autoresearch.audit.noise import measure_noise, record_existing_noise
+from autoresearch.audit.prune import prune
+from autoresearch.audit.random_arm import run_random_arm
+from autoresearch.audit.verify import verify
+from autoresearch.commands.prune import print_prune
+from autoresearch.commands.random_arm import print_random
+from autoresearch.commands.verify import print_verify
+from autoresearch.executors import add_executor_arguments
+from autoresearch.report import write_report
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "audit",
+        help="noise, verify, prune and the random arm for one campaign, then report.md",
+        description="Run the credibility audit of a campaign in order: seed noise (only if the family has "
+        "none, or with --force), reseeded verification, leave-one-out pruning, the random-search arm; then "
+        "write report.md and its figures. Each step is resumable and writes its part of audit.json.",
+        epilog="Example: autoresearch audit --campaign runs/docking-tpe-20250101-120000 --workers 4",
+    )
+    p.add_argument("--campaign", required=True, help="campaign directory")
+    p.add_argument(
+        "--force", action="store_true", help="re-measure the seed noise even if the family has one"
+    )
+    p.add_argument("--noise-seeds", type=positive_int, default=10, help="K for the seed noise (default 10)")
+    p.add_argument("--top", type=positive_int, default=3, help="candidates to reseed (default 3)")
+    p.add_argument("--seeds", type=positive_int, default=10, help="fresh seeds per verification (default 10)")
+    p.add_argument("--count", type=positive_int, help="random-arm experiments (default: the campaign's)")
+    p.add_argument("--matched-range", action="store_true", help="also run a matched-range random arm")
+    p.add_argument("--arm", action="append", type=Path, default=[], help="another arm to plot (repeatable)")
+    add_executor_arguments(p)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    def body(executor) -> None:
+        # Each step re-opens the campaign: the previous one may have written the family's
+        # seed_noise or best.
+        campaign = open_campaign(args.campaign)
+        if campaign.family.seed_noise and not args.force:
+            noise = record_existing_noise(campaign)
+            print(f"[noise] from family.json: {noise['mean']:.6g} +- {noise['std']:.3g} (K={noise['k']})")
+        else:
+            noise = measure_noise(campaign.family, executor, k=args.noise_seeds, campaign=campaign)
+            print(f"[noise] measured: {noise['mean']:.6g} +- {noise['std']:.3g} (K={noise['k']})")
+        print("[verify]")
+        print_verify(verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds))
+        print("[prune]")
+        print_prune(prune(open_campaign(args.campaign), executor))
+        for matched in (False, True) if args.matched_range else (False,):
+            print("[random" + (", matched range]" if matched else "]"))
+            print_random(
+                run_random_arm(
+                    open_campaign(args.campaign), executor, count=args.count, matched_range=matched
+                )
+            )
+        print(f"[report] {write_report(Path(args.campaign), arms=args.arm)}")
+
+    return run_command("audit", args, body)

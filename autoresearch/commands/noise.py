@@ -1,0 +1,54 @@
+"""``autoresearch noise``: measure a family's seed noise (paper Eq. noisefloor)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from autoresearch.audit.commandline import positive_int, run_command
+from autoresearch.audit.inputs import open_campaign
+from autoresearch.audit.noise import default_noise_dir, measure_noise
+from autoresearch.executors import add_executor_arguments
+from autoresearch.family import resolve_family
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "noise",
+        help="measure a family's seed noise: its baseline over K fresh seeds",
+        description="Run the family's baseline configuration at K fresh seeds and write the mean and the "
+        "Bessel-corrected standard deviation of the metric into the family's family.json (seed_noise). "
+        "Resumable: a re-run skips the seeds already measured.",
+        epilog="Example: autoresearch noise --family docking --seeds 10 --workers 2",
+    )
+    p.add_argument("--family", required=True, help="family name (families/<name>) or family directory")
+    p.add_argument("--seeds", type=positive_int, default=10, help="K, the number of seeds (>= 2, default 10)")
+    p.add_argument("--campaign", help="also record the noise in this campaign's audit.json (runs go there)")
+    p.add_argument("--out", type=Path, help="run directory without --campaign (default runs/noise-<family>)")
+    p.add_argument(
+        "--timeout-per-run", type=float, default=3600.0, help="without --campaign (default 3600 s)"
+    )
+    add_executor_arguments(p)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    def body(executor) -> None:
+        family = resolve_family(args.family)
+        campaign = open_campaign(args.campaign) if args.campaign else None
+        if campaign is not None and campaign.family.path != family.path:
+            raise ValueError(f"{args.campaign} is a campaign of {campaign.family.path}, not of {family.path}")
+        noise = measure_noise(
+            family,
+            executor,
+            k=args.seeds,
+            campaign=campaign,
+            out_dir=args.out or default_noise_dir(family),
+            timeout=args.timeout_per_run,
+        )
+        print(
+            f"seed noise of {family.name}: {family.metric} = {noise['mean']:.6g} +- {noise['std']:.3g} "
+            f"(K={noise['k']}, seeds {noise['seeds']}); written to {family.path / 'family.json'}"
+        )
+
+    return run_command("noise", args, body)

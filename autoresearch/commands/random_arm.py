@@ -1,0 +1,66 @@
+"""``autoresearch random``: the random-search arm matched to a campaign (module named so as not to
+shadow the standard library's random)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from autoresearch.audit.commandline import positive_int, run_command
+from autoresearch.audit.inputs import open_campaign
+from autoresearch.audit.random_arm import run_random_arm
+from autoresearch.executors import add_executor_arguments
+from autoresearch.family import resolve_family
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "random",
+        help="run random search over the same surface and budget as a campaign",
+        description="Random search over the family's editable surface from the same first experiment (the "
+        "baseline), with the campaign's per-experiment timeout and experiment count, written as a campaign "
+        "directory; then the verdict of paper Eq. verdict in seed-noise units.",
+        epilog="Example: autoresearch random --family docking --budget-from runs/docking-tpe-20250101-120000",
+    )
+    p.add_argument("--family", help="family name or directory (default: the campaign's family)")
+    p.add_argument("--budget-from", required=True, help="the campaign whose budget and count are matched")
+    p.add_argument("--count", type=positive_int, help="experiments (default: as many as the campaign ran)")
+    p.add_argument(
+        "--matched-range",
+        action="store_true",
+        help="sample the training-budget axis over the campaign's range",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the random proposer (default 0)")
+    p.add_argument("--out", type=Path, help="arm directory (default <campaign>-random[-matched] beside it)")
+    add_executor_arguments(p)
+    return p
+
+
+def print_random(part: dict) -> None:
+    best = part["best"]
+    best_text = f"{best['metric']:.6g} ({best['run_id']})" if best else "none feasible"
+    print(
+        f"random arm {part['dir']}: best of {part['count']}: {best_text}; feasible {part['n_feasible']} of {part['n_ran']}"
+    )
+    units = f" ({part['units']:+.2f} sigma)" if part["units"] is not None else ""
+    print(f"  verdict: {part['verdict'] or part.get('verdict_note')}{units}")
+
+
+def run(args: argparse.Namespace) -> int:
+    def body(executor) -> None:
+        campaign = open_campaign(args.budget_from)
+        if args.family and resolve_family(args.family).path != campaign.family.path:
+            raise ValueError(
+                f"{args.budget_from} is a campaign of {campaign.family.path}, not of {args.family}"
+            )
+        part = run_random_arm(
+            campaign,
+            executor,
+            count=args.count,
+            matched_range=args.matched_range,
+            seed=args.seed,
+            out=args.out,
+        )
+        print_random(part)
+
+    return run_command("random", args, body)

@@ -1,0 +1,36 @@
+"""``autoresearch report``: write a campaign's audit report (report.md and its figures)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from autoresearch.audit.inputs import AuditError
+from autoresearch.family import FamilyError
+from autoresearch.journal import JournalError
+from autoresearch.report import write_report
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "report",
+        help="write report.md and its figures into a campaign directory",
+        description="Write the audit report of a campaign: the audit table (seed noise, random arms, "
+        "single-seed best, reseeded mean with its margin and PASS/FAIL), the mean difference with its "
+        "confidence interval, the pruning decisions, and the search and recipe figures.",
+        epilog="Example: autoresearch report --campaign runs/docking-llm --arm runs/docking-tpe",
+    )
+    p.add_argument("--campaign", required=True, help="campaign directory")
+    p.add_argument("--arm", action="append", type=Path, default=[], help="another arm to plot (repeatable)")
+    p.add_argument("--out", type=Path, help="output directory (default: the campaign directory)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        print(write_report(Path(args.campaign), arms=args.arm, out_dir=args.out))
+    except (AuditError, FamilyError, JournalError, OSError) as err:
+        print(f"autoresearch report: error: {err}", file=sys.stderr)
+        return 2
+    return 0

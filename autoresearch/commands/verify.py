@@ -1,0 +1,45 @@
+"""``autoresearch verify``: reseeded verification of a campaign's best configurations."""
+
+from __future__ import annotations
+
+import argparse
+
+from autoresearch.audit.commandline import positive_int, run_command
+from autoresearch.audit.inputs import open_campaign
+from autoresearch.audit.verify import verify
+from autoresearch.executors import add_executor_arguments
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "verify",
+        help="reseed a campaign's top configurations at fresh seeds and promote the family best",
+        description="Rebuild the campaign's configurations from proposals.jsonl, rank them, re-run the top "
+        "few at fresh seeds, gate each (margin m >= 2 seed-noise units and feasible on every seed) and "
+        "promote the most reproducible passing one into the family's family.json (best).",
+        epilog="Example: autoresearch verify --campaign runs/docking-tpe-20250101-120000 --workers 2",
+    )
+    p.add_argument("--campaign", required=True, help="campaign directory")
+    p.add_argument("--top", type=positive_int, default=3, help="candidates to reseed (default 3)")
+    p.add_argument("--seeds", type=positive_int, default=10, help="fresh seeds per candidate (default 10)")
+    add_executor_arguments(p)
+    return p
+
+
+def print_verify(part: dict) -> None:
+    for c in part["candidates"]:
+        if "mu_r" in c:
+            sd = "n/a" if c["sigma_r"] is None else f"{c['sigma_r']:.3g}"
+            print(
+                f"  {c['config_id']}: {c['mu_r']:.6g} +- {sd} (n={c['n']}), m = {c['margin']:.2f}: {c['reason']}"
+            )
+        else:
+            print(f"  {c['config_id']}: {c['reason']}")
+    print(f"  promoted: {part['promoted'] or 'none'} ({part['reason']})")
+
+
+def run(args: argparse.Namespace) -> int:
+    def body(executor) -> None:
+        print_verify(verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds))
+
+    return run_command("verify", args, body)

@@ -1,0 +1,390 @@
+"""The audit report of a campaign: report.md and its figures, written into the campaign directory.
+
+report.md reads on its own: the audit table in the shape of the paper's Tables 2 and 3, the mean
+difference with its confidence interval, the verified candidates, the pruning decisions, and
+the figures: the search (paper Fig. hero a: every experiment's metric and each arm's running
+best), the recipe (Fig. hero b: how each parameter moved), and, when the family ships a
+report.py plotting hook, its domain figure for the promoted configuration's saved policy.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from autoresearch.audit.auditjson import read_audit
+from autoresearch.audit.inputs import Campaign, open_campaign
+from autoresearch.family import Family
+from autoresearch.journal import read_json, read_jsonl
+from autoresearch.runner import family_env
+
+COLORS = {"agent": "#2ca02c", "random": "#1f77b4", "random_matched": "#6baed6", "other": "#ff7f0e"}
+HOOK_TIMEOUT_S = 600.0
+LOG_SPAN = 10.0  # the search figure goes log-scale once the metric spans a decade (paper Fig. hero a)
+
+
+@dataclass(frozen=True)
+class Arm:
+    label: str
+    color: str
+    records: list[dict[str, Any]]
+
+    @property
+    def ran(self) -> list[dict[str, Any]]:
+        return [r for r in self.records if r["status"] == "ran"]
+
+
+def _load_arm(directory: Path, label: str | None, color: str) -> Arm:
+    meta_path = directory / "campaign.json"
+    proposer = read_json(meta_path).get("proposer", "?") if meta_path.exists() else "?"
+    return Arm(label or f"{proposer} ({directory.name})", color, read_jsonl(directory / "proposals.jsonl"))
+
+
+def random_arms(audit: dict[str, Any]) -> list[Arm]:
+    """The random arms the campaign's audit ran."""
+    arms = []
+    for step, label in (("random", "random search"), ("random_matched", "random search, matched range")):
+        part = audit.get(step)
+        if part and Path(part["dir"]).is_dir():
+            arms.append(_load_arm(Path(part["dir"]), label, COLORS[step]))
+    return arms
+
+
+def _fmt(x: float | None, digits: int = 4) -> str:
+    return "n/a" if x is None else f"{x:.{digits}g}"
+
+
+def _mean_sd(mean: float | None, sd: float | None, n: int | None) -> str:
+    return f"{_fmt(mean)} ± {_fmt(sd, 2)} (n={n})"
+
+
+# ----- figures ---------------------------------------------------------------------------
+
+
+def search_figure(arms: list[Arm], family: Family, noise: dict[str, Any] | None, out: Path) -> None:
+    """Per-experiment metric (filled: feasible, hollow: infeasible) and each arm's running best."""
+    fig = Figure(figsize=(8, 4.5))
+    ax = fig.add_subplot()
+    values = []
+    for arm in arms:
+        ran = arm.ran
+        values += [r["metric"] for r in ran]
+        for feasible in (True, False):
+            pts = [r for r in ran if bool(r["feasible"]) == feasible]
+            ax.scatter(
+                [r["iteration"] for r in pts],
+                [r["metric"] for r in pts],
+                s=18,
+                alpha=0.6,
+                facecolors=arm.color if feasible else "none",
+                edgecolors=arm.color,
+            )
+        trace = [(r["iteration"], r["best_so_far"]) for r in arm.records if r.get("best_so_far") is not None]
+        if trace:
+            ax.step(
+                *zip(*trace, strict=True),
+                where="post",
+                color=arm.color,
+                lw=2,
+                label=f"{arm.label}: best so far",
+            )
+    if noise:
+        ax.axhline(noise["mean"], color="gray", lw=1, ls=":", label=f"baseline over {noise['k']} seeds")
+        ax.axhspan(noise["mean"] - noise["std"], noise["mean"] + noise["std"], color="gray", alpha=0.15)
+    if family.target is not None:
+        ax.axhline(family.target, color="black", lw=1, ls="--", label=f"target {family.target:g}")
+        values.append(family.target)
+    if values and min(values) > 0 and max(values) / min(values) >= LOG_SPAN:
+        ax.set_yscale("log")
+    better = "lower" if family.direction < 0 else "higher"
+    ax.set(
+        xlabel="experiment", ylabel=f"{family.metric} ({better} is better)", title="Search: every experiment"
+    )
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+
+
+def recipe_figure(records: list[dict[str, Any]], family: Family, out: Path) -> None:
+    """How each parameter moved: every run's value (dots) and the running best's value (line)."""
+    ran = [r for r in records if r["status"] == "ran"]
+    names = family.space.names
+    ncols = min(3, len(names))
+    nrows = math.ceil(len(names) / ncols)
+    fig = Figure(figsize=(4 * ncols, 2.3 * nrows))
+    best, best_configs = None, []
+    for r in ran:
+        if r["feasible"] and (best is None or family.direction * (r["metric"] - best["metric"]) > 0):
+            best = r
+        best_configs.append((r["iteration"], best["config"] if best else None))
+    for i, name in enumerate(names, start=1):
+        ax = fig.add_subplot(nrows, ncols, i)
+        param = family.space.params[name]
+        levels = list(param.choices) if param.type == "categorical" else [False, True]
+
+        def y(value, param=param, levels=levels):
+            return levels.index(value) if param.type in ("categorical", "bool") else value
+
+        ax.scatter(
+            [r["iteration"] for r in ran], [y(r["config"][name]) for r in ran], s=10, color="gray", alpha=0.5
+        )
+        line = [(it, y(cfg[name])) for it, cfg in best_configs if cfg is not None]
+        if line:
+            ax.step(*zip(*line, strict=True), where="post", color=COLORS["agent"], lw=2)
+        if param.type in ("categorical", "bool"):
+            ax.set_yticks(range(len(levels)), [str(v) for v in levels])
+        elif param.type == "log-real":
+            ax.set_yscale("log")
+        ax.set_title(f"{name} ({param.axis})", fontsize=9)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.tick_params(labelsize=7)
+    fig.suptitle("Recipe: each parameter over the campaign (line: the running best's value)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+
+
+def family_hook(campaign: Campaign, verify: dict[str, Any] | None, out: Path) -> str | None:
+    """Run the family's report.py on the promoted configuration's saved policy; None if it ran."""
+    family = campaign.family
+    if not (family.path / "report.py").is_file():
+        return "the family has no report.py plotting hook"
+    promoted = next(
+        (c for c in (verify or {}).get("candidates", []) if c["config_id"] == verify["promoted"]), None
+    )
+    if promoted is None:
+        return "no promoted configuration to plot"
+    run = next((r for r in promoted["reseeds"] if r["excluded"] is None), None)
+    policy = campaign.step_dir("verify") / run["run_id"] / "out"
+    cmd = [sys.executable, "report.py", "--policy", str(policy), "--out", str(out.resolve())]
+    try:
+        done = subprocess.run(
+            cmd,
+            cwd=family.path,
+            env=family_env(family),
+            capture_output=True,
+            text=True,
+            timeout=HOOK_TIMEOUT_S,
+        )
+    except subprocess.TimeoutExpired:
+        return f"the family's report.py did not finish within {HOOK_TIMEOUT_S:g} s"
+    if done.returncode != 0 or not out.exists():
+        return f"the family's report.py failed (exit {done.returncode}): {done.stderr.strip()[-300:]}"
+    return None
+
+
+# ----- report.md -------------------------------------------------------------------------
+
+
+def _best_of(arm_part: dict[str, Any]) -> str:
+    best = arm_part["best"]
+    if best:
+        return _fmt(best["metric"])
+    any_best = arm_part["best_any"]
+    return f"{_fmt(any_best['metric'])} (none feasible)" if any_best else "no successful run"
+
+
+def audit_table(campaign: Campaign, audit: dict[str, Any], other_arms: list[Arm]) -> list[str]:
+    """The paper's Tables 2 and 3: one row per arm, the reseeded headline last."""
+    family = campaign.family
+    rows = ["| Arm | " + family.metric + " | Strict-feasible | vs. seed noise |", "|---|---|---|---|"]
+    noise = audit.get("noise") or family.seed_noise
+    if noise:
+        feas = f"{noise['n_feasible']} of {noise['k']}" if "n_feasible" in noise else "n/a"
+        rows.append(
+            f"| Seed noise (n={noise['k']}) | {_fmt(noise['mean'])} ± {_fmt(noise['std'], 2)} | {feas} | reference |"
+        )
+    for step, name in (("random", "Random search"), ("random_matched", "Matched-range random")):
+        part = audit.get(step)
+        if part:
+            units = f", {part['units']:+.1f}σ" if part.get("units") is not None else ""
+            rows.append(
+                f"| {name} (best of {part['count']}) | {_best_of(part)} | {part['n_feasible']} of {part['n_ran']} "
+                f"| not gated ({part['verdict'] or 'no verdict'}{units}) |"
+            )
+    sign = family.direction
+    for arm in other_arms:
+        ran = arm.ran
+        feasible = [r for r in ran if r["feasible"]]
+        best = max(feasible, key=lambda r: sign * r["metric"]) if feasible else None
+        rows.append(
+            f"| {arm.label} (best of {len(ran)}) | {_fmt(best and best['metric'])} | {len(feasible)} of {len(ran)} | not gated |"
+        )
+    single = campaign.single_seed_best()
+    if single:
+        rows.append(f"| Agent, single-seed best | {_fmt(single['metric'])} | yes | not gated |")
+    verify = audit.get("verify") or {}
+    shown = _promoted(verify) or next((c for c in verify.get("candidates", []) if "mu_r" in c), None)
+    if shown:
+        verdict = "PASS" if shown["passed"] else "FAIL"
+        rows.append(
+            f"| Agent, reseeded (n={shown['n']}) | **{_fmt(shown['mu_r'])} ± {_fmt(shown['sigma_r'], 2)}** "
+            f"| {shown['n_feasible']} of {shown['n']} | **{shown['margin']:.1f}σ, {verdict}** |"
+        )
+    pruned = (audit.get("prune") or {}).get("pruned")
+    if pruned and "mu_r" in pruned:
+        verdict = "published" if audit["prune"]["published"] else "not published"
+        rows.append(
+            f"| Pruned recipe, reseeded (n={pruned['n']}) | {_fmt(pruned['mu_r'])} ± {_fmt(pruned['sigma_r'], 2)} "
+            f"| {pruned['n_feasible']} of {pruned['n']} | {pruned['margin']:.1f}σ, {verdict} |"
+        )
+    return rows
+
+
+def _promoted(verify: dict[str, Any]) -> dict[str, Any] | None:
+    return next((c for c in verify.get("candidates", []) if c["config_id"] == verify.get("promoted")), None)
+
+
+def _changes(config: dict[str, Any], family: Family) -> str:
+    baseline = family.baseline_config
+    return (
+        ", ".join(f"{k}={config[k]!r}" for k in family.space.names if config[k] != baseline[k])
+        or "(baseline)"
+    )
+
+
+def verify_section(campaign: Campaign, verify: dict[str, Any]) -> list[str]:
+    family = campaign.family
+    if not verify:
+        return ["Not run (`autoresearch verify --campaign DIR`)."]
+    lines = [f"Fresh seeds {verify.get('seeds')}; {verify['reason']}.", ""]
+    lines += [
+        "| Config | Edits | Single-seed | Reseeded mean ± sd | m | Feasible | Excluded | Result |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for c in verify["candidates"]:
+        if "mu_r" not in c:
+            lines.append(
+                f"| {c['config_id']} | {_changes(c['config'], family)} | {_fmt(c['source']['metric'])} "
+                f"| — | — | — | — | {c.get('reason', 'not run')} |"
+            )
+            continue
+        excluded = f"{c['n_failed']} failed, {c['n_parity_excluded']} parity"
+        mark = " (promoted)" if c["config_id"] == verify["promoted"] else ""
+        lines.append(
+            f"| {c['config_id']}{mark} | {_changes(c['config'], family)} | {_fmt(c['source']['metric'])} "
+            f"| {_mean_sd(c['mu_r'], c['sigma_r'], c['n'])} | {c['margin']:.2f} | {c['n_feasible']} of {c['n']} "
+            f"| {excluded} | {c['reason']} |"
+        )
+    promoted = _promoted(verify)
+    single = verify.get("single_seed_best")
+    lines.append("")
+    if promoted:
+        lines.append(
+            f"Promoted: **{promoted['config_id']}**, the passing candidate with the best pessimistic end of the "
+            "95% confidence interval of its reseeded mean (the most reproducible)."
+        )
+        if single and single["config_id"] != promoted["config_id"]:
+            lines.append(
+                f"It is not the single-seed best ({single['config_id']}, {_fmt(single['metric'])} at run "
+                f"{single['run_id']}): reseeding revised which configuration is best."
+            )
+        if "diff" in promoted:
+            noise = verify["noise"]
+            lines.append(
+                f"\nMean difference to the seed-noise baseline (oriented, positive = better): "
+                f"**{_fmt(promoted['diff'])}** (95% Welch CI [{_fmt(promoted['ci_low'])}, {_fmt(promoted['ci_high'])}]), "
+                f"m = {promoted['margin']:.1f} units of σ = {_fmt(noise['std'], 3)} measured over K = {noise['k']} seeds."
+            )
+    else:
+        lines.append("No candidate passed the gate: nothing was promoted and the family best is unchanged.")
+    return lines
+
+
+def prune_section(campaign: Campaign, prune: dict[str, Any]) -> list[str]:
+    if not prune:
+        return ["Not run (`autoresearch prune --campaign DIR`)."]
+    if prune.get("status") == "skipped":
+        return [prune["reason"] + "."]
+    lines = [
+        f"Each edit of {prune['promoted']} reverted alone (probe seeds {prune['probe_seeds']}; "
+        f"Δ in units of σ, negative = reverting hurts):",
+        "",
+        "| Parameter | Axis | Default → value | Δ1/σ | Δ2/σ | Decision | Note |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for d in prune["decisions"]:
+        d1 = f"{d['delta1_sigma']:+.2f}" if "delta1_sigma" in d else "—"
+        d2 = f"{d['delta2_sigma']:+.2f}" if "delta2_sigma" in d else "—"
+        label = "drop†" if d["decision"] == "drop-dagger" else d["decision"]
+        lines.append(
+            f"| {d['param']} | {d['axis']} | {d['default']!r} → {d['value']!r} | {d1} | {d2} | {label} | {d['note'] or ''} |"
+        )
+    lines += [
+        "",
+        f"Load-bearing: {', '.join(prune['kept']) or 'none'}. Dropped: {', '.join(prune['dropped']) or 'none'}.",
+    ]
+    if prune["flagged"]:
+        lines.append(f"Flagged † (reverting helps, moved the wrong way): {', '.join(prune['flagged'])}.")
+    pruned = prune.get("pruned")
+    if pruned and "mu_r" in pruned:
+        lines.append(
+            f"Pruned recipe re-verified at seeds {prune['reverify_seeds']}: "
+            f"{_mean_sd(pruned['mu_r'], pruned['sigma_r'], pruned['n'])}, m = {pruned['margin']:.2f}, "
+            f"target retained: {prune['target_retained']}."
+        )
+    lines.append(f"**{prune['reason'][0].upper() + prune['reason'][1:]}.**")
+    return lines
+
+
+def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None = None) -> Path:
+    """Write report.md, search.png, recipe.png (and trajectories.png) and return report.md's path."""
+    campaign = open_campaign(campaign_dir)
+    family = campaign.family
+    audit = read_audit(campaign.root)
+    out_dir = Path(out_dir or campaign.root)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    agent = Arm(f"agent ({campaign.meta.get('proposer', '?')})", COLORS["agent"], campaign.records)
+    extra = [_load_arm(Path(d), None, COLORS["other"]) for d in arms]
+    noise = audit.get("noise") or family.seed_noise
+    search_figure([agent, *random_arms(audit), *extra], family, noise, out_dir / "search.png")
+    recipe_figure(campaign.records, family, out_dir / "recipe.png")
+    hook_note = family_hook(campaign, audit.get("verify"), out_dir / "trajectories.png")
+    better = "lower" if family.direction < 0 else "higher"
+    n_runs = sum(r["status"] in ("ran", "failed") for r in campaign.records)
+    lines = [
+        f"# Audit report: {campaign.root.name}",
+        "",
+        f"Family **{family.name}** ({family.path}); metric `{family.metric}` ({better} is better); "
+        f"target {family.target}; feasibility field `{family.feasibility_field}`. "
+        f"Campaign proposer: {campaign.meta.get('proposer', '?')}, {n_runs} experiments. "
+        "How to read this report: docs/audit.md.",
+        "",
+        "## Audit table",
+        "",
+        *audit_table(campaign, audit, extra),
+        "",
+        "The reseeded mean is the headline number; the single-seed best is shown for traceability. "
+        "The gate (paper Eq. reseedgate): m = σ_dir(μ_R − μ_0)/σ ≥ 2 and feasible on every reseed.",
+        "",
+        "## Reseeded verification",
+        "",
+        *verify_section(campaign, audit.get("verify") or {}),
+        "",
+        "## Leave-one-out pruning",
+        "",
+        *prune_section(campaign, audit.get("prune") or {}),
+        "",
+        "## Figures",
+        "",
+        "![search](search.png)",
+        "",
+        "Every experiment of each arm (filled: feasible, hollow: infeasible) and each arm's running best; "
+        "the gray band is the baseline's mean ± σ.",
+        "",
+        "![recipe](recipe.png)",
+        "",
+    ]
+    if hook_note is None:
+        lines += ["![trajectories](trajectories.png)", "", "The family's own figure for the promoted policy."]
+    else:
+        lines.append(f"No family figure: {hook_note}.")
+    (out_dir / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return out_dir / "report.md"

@@ -1,0 +1,47 @@
+"""Helpers for the audit tests: family copies and campaigns made by the real loop (with the
+campaign.json that ``autoresearch loop`` writes, which the audit reads)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from loop_helpers import TOY_FAMILY, ScriptedProposer
+
+from autoresearch.family import Family
+from autoresearch.journal import write_json_atomic
+from autoresearch.orchestrator import LoopSettings, Orchestrator
+from autoresearch.proposers.base import Proposer
+from autoresearch.stopping import Budgets
+
+AUDIT_FAMILY = Path(__file__).resolve().parent / "audit_family"
+__all__ = ["AUDIT_FAMILY", "P1", "P1W", "P2", "TOY_FAMILY", "ScriptedProposer", "copy_family", "run_campaign"]
+
+# tests/audit_family's designed edits (see its train.py): P1 edits one parameter per
+# Eq. loodecision case; P2 adds the pair that matters only jointly; P1W is P1 made erratic.
+P1 = {"EPOCHS": 60, "SAFE": True, "HITCH": "b", "BORDER": 1.0, "DAGGER": 1, "GAP": 1.0}
+P2 = {**P1, "JOINT_A": True, "JOINT_B": True}
+P1W = {**P1, "WIDE": True}
+
+
+def copy_family(src: Path, dest: Path) -> Family:
+    """A private copy: the audit writes seed_noise and best into family.json."""
+    shutil.copytree(src, dest, ignore=shutil.ignore_patterns("runs.jsonl*", "__pycache__"))
+    return Family.load(dest)
+
+
+def run_campaign(
+    family: Family, root: Path, proposer: Proposer, iterations: int, timeout: float = 60.0
+) -> Path:
+    """A campaign directory as ``autoresearch loop`` writes it (campaign.json included)."""
+    root.mkdir(parents=True)
+    meta = {
+        "family": str(family.path),
+        "family_name": family.name,
+        "proposer": proposer.name,
+        "settings": {"timeout_per_run": timeout, "seed": 0, "max_iters": iterations},
+    }
+    write_json_atomic(root / "campaign.json", meta)
+    budgets = Budgets(max_iters=iterations, plateau_window=10**6)
+    Orchestrator(family, proposer, root, LoopSettings(proposer.name, budgets, timeout_per_run=timeout)).run()
+    return root

@@ -1,0 +1,92 @@
+"""`autoresearch audit` end to end through the CLI, and the report it leaves behind."""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
+
+from autoresearch.audit.auditjson import read_audit
+from autoresearch.cli import main
+from autoresearch.family import Family
+from autoresearch.proposers.tpe import TPEProposer
+
+
+def png_size(path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a PNG"
+    return struct.unpack(">II", data[16:24])
+
+
+@pytest.fixture(scope="module")
+def audited(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("report")
+    family = copy_family(AUDIT_FAMILY, tmp / "family")
+    root = run_campaign(family, tmp / "campaign", ScriptedProposer([P1, P1W]), iterations=3)
+    tpe = run_campaign(family, tmp / "tpe", TPEProposer(family.registry, seed=0), iterations=4)
+    argv = ["audit", "--campaign", str(root), "--noise-seeds", "4", "--seeds", "4", "--count", "5"]
+    code = main([*argv, "--matched-range", "--arm", str(tpe), "--workers", "2"])
+    return family, root, code, argv
+
+
+def test_audit_command_runs_every_step(audited):
+    family, root, code, _ = audited
+    assert code == 0
+    audit = read_audit(root)
+    assert {k: audit[k]["status"] for k in audit} == dict.fromkeys(
+        ("noise", "verify", "prune", "random", "random_matched"), "done"
+    )
+    assert Family.load(family.path).registry["seed_noise"]["k"] == 4
+
+
+def test_report_has_the_audit_table_in_the_papers_shape(audited):
+    _, root, _, _ = audited
+    text = (root / "report.md").read_text()
+    for row in (
+        "| Seed noise (n=4) | 1.8 ± 0.012 | 0 of 4 | reference |",
+        "| Random search (best of 5) |",
+        "| Matched-range random (best of 5) |",
+        "| tpe (tpe) (best of ",
+        "| Agent, single-seed best | 1.197 | yes | not gated |",
+        "| Agent, reseeded (n=4) | **1.297 ± 0.012** | 4 of 4 | **43.6σ, PASS** |",
+        "| Pruned recipe, reseeded (n=4) |",
+    ):
+        assert row in text
+    assert "95% Welch CI [" in text and "It is not the single-seed best" in text
+    assert "| DAGGER | optimizer | 0 → 1 | +2.87 | +2.00 | drop† |" in text
+    assert "clears the gate and keeps the target" in text
+
+
+def test_report_figures_are_non_trivial_pngs(audited):
+    _, root, _, _ = audited
+    for name in ("search.png", "recipe.png", "trajectories.png"):  # trajectories: the family's hook
+        width, height = png_size(root / name)
+        assert width >= 300 and height >= 200 and (root / name).stat().st_size > 10_000
+        assert f"({name})" in (root / "report.md").read_text()
+
+
+def test_rerunning_the_audit_runs_nothing_again(audited):
+    _, root, _, argv = audited
+    logs = [*sorted(root.glob("audit/*/*.jsonl")), root.parent / "campaign-random" / "trials.jsonl"]
+    before = [p.read_bytes() for p in logs]
+    assert main(argv) == 0
+    assert [p.read_bytes() for p in logs] == before
+    assert read_audit(root)["noise"]["source"] == "measured"  # the family's noise, measured by this audit
+
+
+def test_report_of_an_unaudited_campaign_says_what_is_missing(tmp_path):
+    family = copy_family(AUDIT_FAMILY, tmp_path / "family")
+    root = run_campaign(family, tmp_path / "campaign", ScriptedProposer([P1]), iterations=2)
+    assert main(["report", "--campaign", str(root)]) == 0
+    text = (root / "report.md").read_text()
+    assert "Not run (`autoresearch verify" in text and "No family figure: no promoted configuration" in text
+    assert png_size(root / "search.png")[0] >= 300
+
+
+def test_cli_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
+    family = copy_family(AUDIT_FAMILY, tmp_path / "family")
+    assert main(["noise", "--family", str(family.path), "--seeds", "1", "--out", str(tmp_path / "n")]) == 2
+    assert "K >= 2" in capsys.readouterr().err
+    assert main(["verify", "--campaign", str(tmp_path)]) == 2
+    assert "not a campaign directory" in capsys.readouterr().err
