@@ -1,14 +1,16 @@
 """cwh_envs: Clohessy-Wiltshire-Hill rendezvous and keep-out docking as Gymnasium environments.
 
-Importing the package registers ``CWHRendezvous-v0`` and ``CWHDockKOZ-v0``; without the
-import, ``gym.make("cwh_envs:CWHRendezvous-v0")`` imports it for you.
+Importing the package registers ``CWHRendezvous-v0`` and ``CWHDockKOZ-v0``. Gymnasium 1.x loads
+no plugin entry points, so without the import use the module-prefixed id,
+``gym.make("cwh_envs:CWHRendezvous-v0")``, which imports the package first.
 """
 
 from gymnasium.envs.registration import register, registry
 
 from cwh_envs.dynamics import cwh_matrices
+from cwh_envs.wrappers import CBFSafetyFilter
 
-__all__ = ["cwh_matrices"]
+__all__ = ["CBFSafetyFilter", "cwh_matrices"]
 __version__ = "0.1.0"
 
 _ENVS = {

@@ -74,6 +74,9 @@ class DockingProblem(_Orbit):
     goal_radius: float = 8.0  # m, docking point distance from the centre
     margin: float = 0.5  # m, standoff delta used by the expert's half-spaces and the CBF filter
     start_distance: tuple[float, float] = (40.0, 110.0)  # m, far-side start range
+    start_cone_deg: float = 60.0  # deg, start bearing uniform in this cone around -goal (far side)
+    velocity_box: tuple[float, float, float] = (0.0, 0.0, 0.0)  # m/s, start velocity uniform in +-box
+    pierce_depth: float = 0.5  # m, the unconstrained path must dip this far inside R + delta
     success_distance: float = 1.0  # m, terminal distance to the docking point
     success_speed: float = 0.05  # m/s, terminal relative speed
 
@@ -93,6 +96,16 @@ class DockingProblem(_Orbit):
             raise ValueError(
                 f"start_distance must satisfy goal_radius < low <= high, got {self.start_distance!r}"
             )
+        if not (0.0 <= self.start_cone_deg < 90.0):
+            raise ValueError(
+                f"start_cone_deg must lie in [0, 90) to stay on the far side, got {self.start_cone_deg!r}"
+            )
+        if len(self.velocity_box) != 3 or any(not (np.isfinite(v) and v >= 0) for v in self.velocity_box):
+            raise ValueError(
+                f"velocity_box must be three non-negative half-widths, got {self.velocity_box!r}"
+            )
+        if not (0.0 <= self.pierce_depth < self.koz_radius + self.margin):
+            raise ValueError(f"pierce_depth must lie in [0, koz_radius + margin), got {self.pierce_depth!r}")
 
 
 def _positive(name: str, value: float) -> None:

@@ -1,0 +1,338 @@
+"""Expert demonstration sets and the held-out evaluation starts, deterministic and cached on disk.
+
+Every builder is a pure function of (task, n, seed, every problem field, FORMAT_VERSION); that
+tuple, hashed, names the cache file, so a changed constant can never serve a stale set. Files are
+written to a temporary name and renamed into place (atomic on POSIX), so concurrent runs at
+worst build the same file twice. Cache directory: the ``cache_dir`` argument, else
+``$CWH_ENVS_CACHE``, else ``~/.cache/cwh_envs``.
+
+Random streams (``np.random.SeedSequence(seed, spawn_key=(stream, task))``) are disjoint by
+construction: training seeds use stream 0, recovery stream 1, and the evaluation set stream 2
+(with entropy fixed at 0), so no training seed can reproduce the held-out set. The evaluation
+builder also checks it against the candidate streams of training seeds 0..EVAL_CHECK_SEEDS-1.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from cwh_envs.experts import Infeasible, solve_docking, solve_rendezvous
+from cwh_envs.observations import docking_observation, rendezvous_observation
+from cwh_envs.problems import DockingProblem, RendezvousProblem
+from cwh_envs.sampling import (
+    docking_candidates,
+    iter_docking_starts,
+    rendezvous_candidates,
+    screened_rendezvous,
+)
+
+FORMAT_VERSION = 1
+TASKS = ("rendezvous", "docking")
+EVAL_CHECK_SEEDS = 32  # training seeds whose candidate streams the evaluation set is checked against
+EVAL_CHECK_CANDIDATES = 16384  # candidates per seed checked: ~4x what 256 docking demos consume
+DEFAULT_RECOVERY_NOISE = (1.0, 0.005)  # (m, m/s) std of the perturbation added to an expert state
+_TRAIN_STREAM, _RECOVERY_STREAM, _EVAL_STREAM = 0, 1, 2
+_MAX_RECOVERY_TRIES = 8  # perturbations tried per source trajectory before moving on
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """State-action pairs of E expert trajectories, M pairs in all, in the env observation layout.
+
+    ``observations`` (M, 7 or 10) float64; ``actions`` (M, 3) thrust [N]; ``episode`` (M,) int,
+    the source trajectory of each pair (0..E-1, in order); ``starts`` (E, 6) [m, m/s], the state
+    each trajectory starts from; ``goals`` (E, 3) [m], docking points (zeros for rendezvous).
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    episode: np.ndarray
+    starts: np.ndarray
+    goals: np.ndarray
+
+    @property
+    def n_episodes(self) -> int:
+        return len(self.starts)
+
+    def take(self, n_episodes: int) -> Demonstrations:
+        """The first ``n_episodes`` trajectories (all of them if fewer)."""
+        if not (isinstance(n_episodes, int | np.integer) and n_episodes >= 1):
+            raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
+        rows = self.episode < n_episodes
+        return Demonstrations(
+            self.observations[rows],
+            self.actions[rows],
+            self.episode[rows],
+            self.starts[:n_episodes],
+            self.goals[:n_episodes],
+        )
+
+
+def demonstrations(task: str, n: int, seed: int = 0, problem=None, cache_dir=None) -> Demonstrations:
+    """``n`` screened expert demonstrations for ``task`` ("rendezvous" or "docking"), seed ``seed``.
+
+    Sets are nested: the first k trajectories of a seed's set do not depend on n.
+    """
+    problem = _problem(task, problem)
+    _check_count("n", n)
+    _check_seed(seed)
+    key = _cache_key("demonstrations", task, problem, n=n, seed=seed)
+    return _cached(
+        cache_dir, key, lambda: _build_demonstrations(task, n, _rng(_TRAIN_STREAM, task, seed), problem)
+    )
+
+
+def evaluation_starts(task: str, n: int = 128, problem=None, cache_dir=None) -> tuple[np.ndarray, np.ndarray]:
+    """The held-out evaluation set: starts (n, 6) and goals (n, 3) (zeros for rendezvous), all expert-solvable."""
+    problem = _problem(task, problem)
+    _check_count("n", n)
+    key = _cache_key("evaluation", task, problem, n=n)
+
+    def build() -> Demonstrations:
+        held_out = _build_demonstrations(task, n, _rng(_EVAL_STREAM, task, 0), problem)
+        _check_disjoint_from_training(task, held_out.starts, problem)
+        return held_out
+
+    held_out = _cached(cache_dir, key, build)
+    return held_out.starts, held_out.goals
+
+
+def recovery_demonstrations(
+    task: str, n: int, seed: int = 0, problem=None, cache_dir=None, noise=DEFAULT_RECOVERY_NOISE
+) -> Demonstrations:
+    """``n`` expert trajectories from states perturbed off the seed's training trajectories.
+
+    For training trajectory i (cycling through ``demonstrations(task, n, seed)``) a step k is drawn
+    uniformly from 1..H - H//8 and the state there perturbed by Gaussian noise
+    ``(position std [m], velocity std [m/s]) = noise``; the expert is re-solved over the remaining
+    H - k steps (to the origin, or to the same docking point). Its pairs carry tau = (H - j) / H
+    for j = k..H-1, exactly what the env shows at those steps. Perturbations the expert cannot
+    solve (e.g. inside the keep-out) are redrawn. ``starts`` holds the perturbed states.
+    """
+    problem = _problem(task, problem)
+    _check_count("n", n)
+    _check_seed(seed)
+    noise = tuple(float(v) for v in noise)
+    if len(noise) != 2 or not all(np.isfinite(v) and v >= 0 for v in noise):
+        raise ValueError(f"noise must be (position_std, velocity_std) >= 0, got {noise!r}")
+    key = _cache_key("recovery", task, problem, n=n, seed=seed, noise=noise)
+
+    def build() -> Demonstrations:
+        sources = demonstrations(task, n, seed, problem, cache_dir)
+        return _build_recovery(task, n, sources, _rng(_RECOVERY_STREAM, task, seed), problem, noise)
+
+    return _cached(cache_dir, key, build)
+
+
+def cache_directory(cache_dir=None) -> Path:
+    """The directory the cached sets live in (argument, else $CWH_ENVS_CACHE, else ~/.cache/cwh_envs)."""
+    if cache_dir is not None:
+        return Path(cache_dir)
+    return Path(os.environ.get("CWH_ENVS_CACHE") or Path.home() / ".cache" / "cwh_envs")
+
+
+# ------------------------------------------------------------------------------------- builders
+
+
+def _build_demonstrations(task: str, n: int, rng: np.random.Generator, problem) -> Demonstrations:
+    progress = _Progress(f"{task} demonstrations", n)
+    if task == "rendezvous":
+        starts, states, controls = screened_rendezvous(rng, n, problem)
+        goals = np.zeros((n, 3))
+        progress.update(n)
+    else:
+        starts, goals, states, controls = [], [], [], []
+        for x0, goal in iter_docking_starts(rng, problem):
+            try:
+                trajectory, thrust = solve_docking(x0, goal, problem)
+            except Infeasible:
+                continue  # the fast screen does not run the SCP; keep only solved demos
+            starts.append(x0)
+            goals.append(goal)
+            states.append(trajectory)
+            controls.append(thrust)
+            progress.update(len(starts))
+            if len(starts) == n:
+                break
+        starts, goals = np.array(starts), np.array(goals)
+    progress.close()
+    first_steps = np.zeros(n, dtype=int)
+    return _pack(task, problem, starts, goals, list(states), list(controls), first_steps)
+
+
+def _build_recovery(task, n, sources: Demonstrations, rng, problem, noise) -> Demonstrations:
+    horizon = problem.horizon
+    scale = np.repeat(noise, 3)
+    progress = _Progress(f"{task} recovery demonstrations", n)
+    starts, goals, states, controls, first_steps = [], [], [], [], []
+    source = 0
+    while len(starts) < n:
+        episode = source % sources.n_episodes
+        goal = sources.goals[episode]
+        nominal = sources.observations[sources.episode == episode, :6]  # states at steps 0..H-1
+        for _ in range(_MAX_RECOVERY_TRIES):
+            step = int(rng.integers(1, horizon - horizon // 8 + 1))
+            perturbed = nominal[step] + rng.normal(size=6) * scale
+            try:
+                trajectory, thrust = _solve(task, perturbed, goal, problem.replace(horizon=horizon - step))
+            except Infeasible:
+                continue
+            starts.append(perturbed)
+            goals.append(goal)
+            states.append(trajectory)
+            controls.append(thrust)
+            first_steps.append(step)
+            progress.update(len(starts))
+            break
+        source += 1
+    progress.close()
+    return _pack(task, problem, np.array(starts), np.array(goals), states, controls, np.array(first_steps))
+
+
+def _solve(task: str, x0, goal, problem):
+    if task == "rendezvous":
+        return solve_rendezvous(x0, problem)
+    return solve_docking(x0, goal, problem)
+
+
+def _pack(task, problem, starts, goals, states, controls, first_steps) -> Demonstrations:
+    """Flatten trajectories into pairs; trajectory i covers steps first_steps[i]..H-1 of the episode."""
+    observations, actions, episode = [], [], []
+    for i, (trajectory, thrust, first) in enumerate(zip(states, controls, first_steps, strict=True)):
+        steps = first + np.arange(len(thrust))
+        if task == "rendezvous":
+            observations.append(
+                rendezvous_observation(trajectory[:-1], steps, problem.horizon, dtype=np.float64)
+            )
+        else:
+            observations.append(
+                docking_observation(trajectory[:-1], goals[i], steps, problem.horizon, dtype=np.float64)
+            )
+        actions.append(thrust)
+        episode.append(np.full(len(thrust), i))
+    return Demonstrations(
+        np.concatenate(observations), np.concatenate(actions), np.concatenate(episode), starts, goals
+    )
+
+
+def _check_disjoint_from_training(task: str, held_out: np.ndarray, problem) -> None:
+    """Assert no held-out start equals a candidate of the training streams (a superset of their starts)."""
+    held = {row.tobytes() for row in held_out}
+    for seed in range(EVAL_CHECK_SEEDS):
+        rng = _rng(_TRAIN_STREAM, task, seed)
+        drawn = 0
+        while drawn < EVAL_CHECK_CANDIDATES:
+            if task == "rendezvous":
+                candidates = rendezvous_candidates(rng, problem)
+            else:
+                candidates = docking_candidates(rng, problem)[0]
+            if any(row.tobytes() in held for row in candidates):
+                raise AssertionError(f"evaluation start found in the training stream of seed {seed}")
+            drawn += len(candidates)
+
+
+# ---------------------------------------------------------------------------------------- cache
+
+
+def _cached(cache_dir, key: dict, build) -> Demonstrations:
+    text = json.dumps(key, sort_keys=True)
+    digest = hashlib.sha256(text.encode()).hexdigest()[:20]
+    path = cache_directory(cache_dir) / f"{key['kind']}-{key['task']}-{digest}.npz"
+    loaded = _load(path, text)
+    if loaded is not None:
+        return loaded
+    result = build()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile(
+        dir=path.parent, prefix=path.stem, suffix=".tmp", delete=False
+    ) as handle:
+        np.savez(handle, key=np.array(text), **{name: getattr(result, name) for name in _FIELDS})
+    os.replace(handle.name, path)
+    return result
+
+
+_FIELDS = ("observations", "actions", "episode", "starts", "goals")
+
+
+def _load(path: Path, text: str) -> Demonstrations | None:
+    if not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as stored:
+            if str(stored["key"]) != text:
+                return None
+            return Demonstrations(*(stored[name] for name in _FIELDS))
+    except (OSError, ValueError, KeyError):
+        return None  # unreadable or foreign file: rebuild and overwrite it
+
+
+def _cache_key(kind: str, task: str, problem, **arguments) -> dict:
+    fields = {name: list(v) if isinstance(v, tuple) else v for name, v in problem.as_dict().items()}
+    return {
+        "format": FORMAT_VERSION,
+        "kind": kind,
+        "task": task,
+        "problem": {"type": type(problem).__name__, **fields},
+        **{name: list(v) if isinstance(v, tuple) else v for name, v in arguments.items()},
+    }
+
+
+# ------------------------------------------------------------------------------------- helpers
+
+
+def _problem(task: str, problem):
+    if task not in TASKS:
+        raise ValueError(f"task must be one of {TASKS}, got {task!r}")
+    kind = RendezvousProblem if task == "rendezvous" else DockingProblem
+    if problem is None:
+        return kind()
+    if not isinstance(problem, kind):
+        raise ValueError(f"task {task!r} needs a {kind.__name__}, got {type(problem).__name__}")
+    return problem
+
+
+def _rng(stream: int, task: str, seed: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(stream, TASKS.index(task))))
+
+
+def _check_count(name: str, n) -> None:
+    if not (isinstance(n, int | np.integer) and n >= 1):
+        raise ValueError(f"{name} must be an integer >= 1, got {n!r}")
+
+
+def _check_seed(seed) -> None:
+    if not (isinstance(seed, int | np.integer) and seed >= 0):
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+
+
+class _Progress:
+    """A compact progress bar on stderr: redrawn in place on a terminal, one summary line otherwise."""
+
+    def __init__(self, label: str, total: int):
+        self.label, self.total, self.started = label, total, time.perf_counter()
+        self.live = sys.stderr.isatty()
+        self.drawn = 0.0
+
+    def update(self, done: int) -> None:
+        now = time.perf_counter()
+        if self.live and (now - self.drawn > 0.1 or done == self.total):
+            filled = int(24 * done / self.total)
+            sys.stderr.write(f"\r{self.label} [{'#' * filled}{'.' * (24 - filled)}] {done}/{self.total}")
+            sys.stderr.flush()
+            self.drawn = now
+
+    def close(self) -> None:
+        elapsed = time.perf_counter() - self.started
+        sys.stderr.write(
+            ("\r" if self.live else "") + f"{self.label}: {self.total} built in {elapsed:.1f} s\n"
+        )
+        sys.stderr.flush()
