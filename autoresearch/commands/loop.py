@@ -10,13 +10,16 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from autoresearch import repeats
 from autoresearch.campaign import CampaignError, CampaignPaths
 from autoresearch.context import shown_registry
-from autoresearch.family import FamilyError, resolve_family
+from autoresearch.executors import add_executor_arguments, make_executor
+from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json, write_json_atomic
 from autoresearch.live import make_view
 from autoresearch.orchestrator import LoopSettings, Orchestrator
 from autoresearch.proposers import KEY_FREE, PROPOSERS, make_proposer
+from autoresearch.proposers.base import Proposer
 from autoresearch.stopping import Budgets
 
 # Settings a campaign keeps in campaign.json; on --resume, flags given again override them.
@@ -94,6 +97,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--resume", action="store_true", help="continue the campaign in --campaign")
     p.add_argument("--plain", action="store_true", help="one line per iteration even on a terminal")
+    p.add_argument(
+        "--repeats",
+        type=_positive(int),
+        help="run N independent campaigns of this arm (proposer seeds seed, seed+1, ...) in "
+        "--campaign/repeat-NN/; the execution flags below apply to them",
+    )
+    add_executor_arguments(p)
     return p
 
 
@@ -163,26 +173,20 @@ def _on_sigterm(signum, frame):
     raise KeyboardInterrupt  # unwinds through the runner, which kills the training process group
 
 
-def run(args: argparse.Namespace) -> int:
-    try:
-        root, meta = _plan(args)
-        settings = meta["settings"]
-        _check_key(meta["proposer"], settings)
-        family = resolve_family(meta["family"])
-        proposer = make_proposer(
-            meta["proposer"],
-            shown_registry(family.registry, settings["blind"]),
-            seed=settings["seed"],
-            model=settings["model"],
-            base_url=settings["base_url"],
-        )
-        if settings["random_arm"] and not Path(settings["random_arm"]).is_dir():
-            raise UsageError(f"--random-arm {settings['random_arm']}: not a directory")
-        root.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(CampaignPaths(root).campaign_json, meta)
-    except (UsageError, FamilyError, ValueError, ImportError) as err:
-        print(f"autoresearch loop: error: {err}", file=sys.stderr)
-        return 2
+def build_loop(meta: dict[str, Any]) -> tuple[Family, Proposer, LoopSettings]:
+    """What a campaign.json runs: its family, its proposer and the loop's settings."""
+    settings = meta["settings"]
+    _check_key(meta["proposer"], settings)
+    family = resolve_family(meta["family"])
+    proposer = make_proposer(
+        meta["proposer"],
+        shown_registry(family.registry, settings["blind"]),
+        seed=settings["seed"],
+        model=settings["model"],
+        base_url=settings["base_url"],
+    )
+    if settings["random_arm"] and not Path(settings["random_arm"]).is_dir():
+        raise UsageError(f"--random-arm {settings['random_arm']}: not a directory")
     loop = LoopSettings(
         proposer_name=meta["proposer"],
         budgets=Budgets(
@@ -198,6 +202,24 @@ def run(args: argparse.Namespace) -> int:
         timeout_per_run=settings["timeout_per_run"],
         random_arm=Path(settings["random_arm"]) if settings["random_arm"] else None,
     )
+    return family, proposer, loop
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.repeats is not None or (args.campaign and repeats.is_group(args.campaign)):
+        return _run_repeats(args)
+    try:
+        if args.workers != 1 or args.executor != "local":
+            raise UsageError(
+                "--workers and --executor apply to --repeats; one campaign runs one experiment at a time"
+            )
+        root, meta = _plan(args)
+        family, proposer, loop = build_loop(meta)
+        root.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(CampaignPaths(root).campaign_json, meta)
+    except (UsageError, FamilyError, ValueError, ImportError) as err:
+        print(f"autoresearch loop: error: {err}", file=sys.stderr)
+        return 2
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     resume_hint = f"autoresearch loop --resume --campaign {root}"
     try:
@@ -224,4 +246,56 @@ def run(args: argparse.Namespace) -> int:
     if outcome.status == "prepare_failed":
         print(f"  fix the family, then: {resume_hint}")
         return 1
+    return 0
+
+
+def _run_repeats(args: argparse.Namespace) -> int:
+    """--repeats N: N campaigns of one arm in sub-directories of --campaign (autoresearch/repeats.py)."""
+    now = datetime.now(timezone.utc)
+    session = {"started": now.isoformat(timespec="seconds"), "argv": sys.argv[1:]}
+    try:
+        if args.resume and not args.campaign:
+            raise UsageError("--resume needs --campaign DIR")
+        saved = (
+            read_json(Path(args.campaign) / repeats.GROUP_FILE)
+            if args.campaign and repeats.is_group(args.campaign)
+            else {}
+        )
+        if not (args.family or saved):
+            raise UsageError("--family is required (a name under families/ or a directory)")
+        family = resolve_family(args.family or saved["family"])
+        proposer = args.proposer or saved.get("proposer") or _default_proposer()
+        root = Path(args.campaign or f"runs/{family.name}-{proposer}-{now.astimezone():%Y%m%d-%H%M%S}")
+        settings = _settings(args, saved.get("settings", {}))
+        group = repeats.plan_group(
+            root, family=family, proposer=proposer, settings=settings, repeats=args.repeats, session=session
+        )
+        build_loop(group.tasks[0].meta)  # refuse bad settings before anything runs
+        group.write()
+    except (UsageError, FamilyError, ValueError, ImportError) as err:
+        print(f"autoresearch loop: error: {err}", file=sys.stderr)
+        return 2
+    resume_hint = f"autoresearch loop --resume --campaign {root}"
+    try:
+        with make_executor(args) as executor:
+            outcomes = repeats.run_group(group, executor)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted; group: {root}\nresume with: {resume_hint}", file=sys.stderr)
+        return 130
+    except (RuntimeError, ValueError) as err:
+        print(f"autoresearch loop: error: {err}", file=sys.stderr)
+        return 2
+    print(f"group: {root} ({proposer}, {len(outcomes)} repeats, seeds {group.meta['seeds']})")
+    for outcome in outcomes:
+        print("  " + repeats.describe(outcome, family.metric))
+    statuses = {o["status"] for o in outcomes}
+    if "error" in statuses:
+        return 2
+    if "interrupted" in statuses:
+        print(f"  resume with: {resume_hint}")
+        return 130
+    if "prepare_failed" in statuses:
+        print(f"  fix the family, then: {resume_hint}")
+        return 1
+    print(f"  compare with: autoresearch compare {root} <other arms>")
     return 0
