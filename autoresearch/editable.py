@@ -13,9 +13,12 @@ from __future__ import annotations
 import ast
 import io
 import math
+import threading
 import tokenize
 from dataclasses import dataclass
 from typing import Any
+
+_PARSE_LOCK = threading.Lock()
 
 OPEN_BANNER = "Editable Configuration"
 CLOSE_BANNER = "Fixed Configuration"
@@ -83,7 +86,10 @@ def read_region(source: str) -> EditableRegion:
         )
     open_line, close_line = opens[0], closes[0]
     try:
-        tree = ast.parse(source)
+        # CPython 3.11's AST constructor is not safe across threads (seen here as "SystemError: AST
+        # constructor recursion depth mismatch" under the audit's threaded pool), so parsing is serialised.
+        with _PARSE_LOCK:
+            tree = ast.parse(source)
     except SyntaxError as err:
         raise EditableError(f"train.py does not parse: {err}") from None
 
