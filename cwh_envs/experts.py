@@ -62,7 +62,8 @@ class LinearModel:
 
     ``powers`` (H+1, 6, 6): A^k; ``terminal`` (6, 3H): G;
     ``terminal_pinv`` (3H, 6): G^+ (minimum-norm right inverse); ``position_response``
-    (H+1, 3, 3H): the position rows of d x_k / d U.
+    (H+1, 3, 3H): the position rows of d x_k / d U; ``controllable`` (H+1,) bool: whether the
+    thrust moves r_k at all (false for k = 0 and, under Euler, k = 1).
     """
 
     a: np.ndarray
@@ -72,6 +73,7 @@ class LinearModel:
     terminal: np.ndarray
     terminal_pinv: np.ndarray
     position_response: np.ndarray
+    controllable: np.ndarray
 
     def terminal_gap(self, x0: np.ndarray, target: np.ndarray) -> np.ndarray:
         """``x_target - A^H x_0`` for (6,) or (N, 6) inputs: what U must add to the coasting state."""
@@ -114,7 +116,8 @@ def _linear_model(n: float, dt: float, mass: float, discretization: str, horizon
     lag = np.arange(horizon + 1)[:, None] - 1 - np.arange(horizon)[None, :]  # k - 1 - j
     response = np.where((lag >= 0)[:, :, None, None], impulse[np.clip(lag, 0, None), :3, :], 0.0)
     position_response = response.transpose(0, 2, 1, 3).reshape(horizon + 1, 3, 3 * horizon)
-    arrays = [powers, terminal, np.linalg.pinv(terminal), position_response]
+    controllable = np.any(position_response != 0.0, axis=(1, 2))
+    arrays = [powers, terminal, np.linalg.pinv(terminal), position_response, controllable]
     for array in arrays:
         array.setflags(write=False)
     return LinearModel(a, b, horizon, *arrays)
@@ -220,8 +223,14 @@ def _box_constrained_controls(model: LinearModel, gap: np.ndarray, free_optimum:
         raise Infeasible("rendezvous start certified unreachable (Farkas)")
     if verdict == "optimal":
         return controls
-    qp = _box_qp(model, u_max)
-    qp.update(b=gap)
+    # A fresh QP per solve (rare: ~0.1 % of starts) keeps the answer independent of solve order.
+    size = 3 * model.horizon
+    qp = proxqp.dense.QP(size, 6, 0, box_constraints=True)
+    qp.settings.eps_abs = RENDEZVOUS_QP_EPS
+    qp.settings.eps_rel = 0.0
+    qp.settings.max_iter = 1000
+    limit = np.full(size, u_max)
+    qp.init(np.eye(size), np.zeros(size), model.terminal, gap, None, None, None, -limit, limit)
     with serial_openmp():
         qp.solve()
     if qp.results.info.status != proxqp.QPSolverOutput.PROXQP_SOLVED:
@@ -267,21 +276,6 @@ def _dual_value(g: np.ndarray, gap: np.ndarray, nu: np.ndarray, u_max: float) ->
     slopes = np.abs(g.T @ nu)
     huber = np.where(slopes <= u_max, 0.5 * slopes**2, u_max * slopes - 0.5 * u_max**2)
     return nu @ gap - huber.sum()
-
-
-@lru_cache(maxsize=8)
-def _box_qp(model: LinearModel, u_max: float) -> proxqp.dense.QP:
-    # G and the box are the same for every start of a problem: the QP and its preconditioner are
-    # built once and each solve only changes the right-hand side.
-    size = 3 * model.horizon
-    qp = proxqp.dense.QP(size, 6, 0, box_constraints=True)
-    qp.settings.eps_abs = RENDEZVOUS_QP_EPS
-    qp.settings.eps_rel = 0.0
-    qp.settings.max_iter = 1000
-    qp.settings.initial_guess = proxqp.InitialGuess.EQUALITY_CONSTRAINED_INITIAL_GUESS
-    limit = np.full(size, u_max)
-    qp.init(np.eye(size), np.zeros(size), model.terminal, np.zeros(6), None, None, None, -limit, limit)
-    return qp
 
 
 def _polish_box_solution(g: np.ndarray, gap: np.ndarray, approx: np.ndarray, u_max: float) -> np.ndarray:
@@ -363,6 +357,9 @@ def scp_docking(x0, goal, problem: DockingProblem | None = None, **params) -> Do
     gap = model.terminal_gap(x0, target)
     controls = model.terminal_pinv @ gap
     positions = model.positions(x0, controls)
+    shortfall = radius - np.linalg.norm(positions[~model.controllable], axis=1).min()
+    if shortfall > CLEARANCE_TOLERANCE:
+        raise Infeasible(f"a position no thrust can move (k = 0, Euler k = 1) is {shortfall:.3g} m inside")
     cost = controls @ controls
     for iteration in range(1, SCP_MAX_ITERATIONS + 1):  # noqa: B007 (reported in the result)
         controls = _halfspace_subproblem(model, x0, gap, positions, radius, problem.u_max)
@@ -403,9 +400,8 @@ def _halfspace_subproblem(model, x0, gap, positions, radius, u_max) -> np.ndarra
     )
     rows = np.einsum("ki,kij->kj", normals, model.position_response)
     rhs = radius - np.einsum("ki,kij,j->k", normals, model.powers[:, :3, :], x0)
-    # Rows that U cannot move (Euler: k = 1) are left to the final clearance check.
-    constrained = np.linalg.norm(rows, axis=1) > 0.0
-    constrained[[0, -1]] = False
+    constrained = model.controllable.copy()  # the others were checked once in scp_docking
+    constrained[-1] = False  # the goal, outside R + delta by validation
     working = constrained & (distances < radius + WORKING_BAND)
     for _ in range(model.horizon):
         controls = _min_norm_with_halfspaces(model, gap, rows[working], rhs[working])
@@ -452,6 +448,7 @@ def _primal_box_qp(eq_rows, eq_rhs, rows, rhs, u_max) -> np.ndarray:
     qp = proxqp.dense.QP(size, len(eq_rhs), len(rhs), box_constraints=True)
     qp.settings.eps_abs = 1e-9
     qp.settings.eps_rel = 0.0
+    qp.settings.max_iter = 200  # solved ones take ~15; an infeasible one would grind for minutes
     limit = np.full(size, u_max)
     qp.init(
         np.eye(size), np.zeros(size), eq_rows, eq_rhs, rows, rhs, np.full(len(rhs), np.inf), -limit, limit

@@ -208,6 +208,13 @@ def test_docking_with_a_binding_thrust_box():
     assert np.linalg.norm(bound.states[:, :3], axis=1).min() >= RADIUS - 1e-6
 
 
+def test_start_inside_the_keep_out_raises_infeasible():
+    with pytest.raises(Infeasible, match="inside"):
+        solve_docking(np.array([3.0, 0.0, 0.0, 0.0, 0.0, 0.0]), np.array([8.0, 0.0, 0.0]))
+    with pytest.raises(Infeasible, match="inside"):  # Euler: r_1 = r_0 + dt v_0 is fixed too
+        solve_docking(np.array([6.0, 0.0, 0.0, -0.1, 0.0, 0.0]), np.array([0.0, 8.0, 0.0]))
+
+
 def test_exact_discretisation_docking_is_consistent():
     problem = DOCK.replace(discretization="exact")
     starts, goals = sample_docking_starts(np.random.default_rng(5), 3, problem)

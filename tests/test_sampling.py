@@ -10,6 +10,7 @@ import pytest
 from cwh_envs.experts import Infeasible, koz_active, linear_model, solve_docking, solve_rendezvous
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 from cwh_envs.sampling import (
+    NoAdmissibleStart,
     docking_candidates,
     docking_screen,
     sample_docking_start,
@@ -119,3 +120,15 @@ def test_bad_counts_raise(n):
         sample_rendezvous_starts(rng(), n, RDZV)
     with pytest.raises(ValueError, match="n must be"):
         sample_docking_starts(rng(), n, DOCK)
+
+
+@pytest.mark.parametrize(
+    ("sample", "problem"),
+    [
+        (sample_rendezvous_starts, RendezvousProblem(horizon=4)),
+        (sample_docking_starts, DockingProblem(horizon=4)),
+    ],
+)
+def test_sampler_gives_up_with_a_clear_error_when_no_start_is_admissible(sample, problem):
+    with pytest.raises(NoAdmissibleStart, match="no start passed the screen"):
+        sample(np.random.default_rng(0), 1, problem)
