@@ -226,7 +226,12 @@ def test_family_json_matches_the_contract_and_train_py(name):
     assert set(registry["search_space"]) == set(defaults)
     assert registry["baseline"]["config"] == defaults
     assert family.metric == METRICS[name] and family.direction == -1
-    assert registry["seed_noise"] is None and registry["best"] is None
+    # Only `autoresearch noise` and the audit's promotion write these; when present they must be whole.
+    noise = registry["seed_noise"]
+    if noise is not None:
+        assert noise["k"] >= 2 and len(noise["values"]) == noise["k"] and noise["std"] > 0
+    if registry["best"] is not None:
+        family.space.validate_full(registry["best"]["config"])
     assert (
         isinstance(registry["baseline"]["metric"], float)
         and registry["baseline"]["seed"] == family.default_seed
