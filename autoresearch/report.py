@@ -85,6 +85,7 @@ def search_figure(arms: list[Arm], family: Family, noise: dict[str, Any] | None,
                 alpha=0.6,
                 facecolors=arm.color if feasible else "none",
                 edgecolors=arm.color,
+                label=f"{arm.label}: {'feasible' if feasible else 'infeasible'} runs" if pts else None,
             )
         trace = [(r["iteration"], r["best_so_far"]) for r in arm.records if r.get("best_so_far") is not None]
         if trace:
