@@ -1,7 +1,8 @@
 """Expert demonstration sets and the held-out evaluation starts, deterministic and cached on disk.
 
-Every builder is a pure function of (task, n, seed, every problem field, FORMAT_VERSION); that
-tuple, hashed, names the cache file, so a changed constant can never serve a stale set. Files are
+Every builder is a pure function of (task, n, seed, every problem field, and the code that builds
+the data); that tuple, hashed, names the cache file, so neither a changed constant nor a changed
+sampler or expert can serve a stale set. Files are
 written to a temporary name and renamed into place (atomic on POSIX), so concurrent runs at
 worst build the same file twice. Cache directory: the ``cache_dir`` argument, else
 ``$CWH_ENVS_CACHE``, else ``~/.cache/cwh_envs``.
@@ -21,10 +22,12 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from cwh_envs import dynamics, experts, observations, problems, sampling
 from cwh_envs.experts import Infeasible, solve_docking, solve_rendezvous
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
@@ -279,11 +282,25 @@ def _cache_key(kind: str, task: str, problem, **arguments) -> dict:
     fields = {name: list(v) if isinstance(v, tuple) else v for name, v in problem.as_dict().items()}
     return {
         "format": FORMAT_VERSION,
+        "code": _builder_source_digest(),
         "kind": kind,
         "task": task,
         "problem": {"type": type(problem).__name__, **fields},
         **{name: list(v) if isinstance(v, tuple) else v for name, v in arguments.items()},
     }
+
+
+@lru_cache(maxsize=1)
+def _builder_source_digest() -> str:
+    """Hash of the modules whose code decides what a builder returns.
+
+    A version number had to be bumped by hand and once was not: a new docking sampler kept serving
+    the old pools under the old key. Hashing the source makes any such change a new key.
+    """
+    digest = hashlib.sha256()
+    for module in (dynamics, problems, sampling, experts, observations, sys.modules[__name__]):
+        digest.update(Path(module.__file__).read_bytes())
+    return digest.hexdigest()[:16]
 
 
 # ------------------------------------------------------------------------------------- helpers

@@ -44,12 +44,9 @@ def required_sets(train) -> list[tuple[str, int, object]]:
     def held_out():
         return (*datasets.evaluation_starts(task, train.N_EVAL, problem=problem), None)
 
+    call = f"demonstrations(n={train.POOL_DEMOS}, seed={train.DATA_SEED})"
     sets = [
-        (
-            f"{task} training pool: demonstrations(n={train.POOL_DEMOS}, seed={train.DATA_SEED})",
-            train.POOL_DEMOS,
-            pool,
-        ),
+        (f"{task} training pool: {call}", train.POOL_DEMOS, pool),
         (f"{task} evaluation starts: evaluation_starts(n={train.N_EVAL})", train.N_EVAL, held_out),
     ]
     if hasattr(train, "POOL_RECOVERY"):  # families with a recovery-augmentation knob (docking)
@@ -60,13 +57,8 @@ def required_sets(train) -> list[tuple[str, int, object]]:
             )
             return demos.starts, demos.goals, demos
 
-        sets.append(
-            (
-                f"{task} recovery pool: recovery_demonstrations(n={train.POOL_RECOVERY}, seed={train.DATA_SEED})",
-                train.POOL_RECOVERY,
-                recovery,
-            )
-        )
+        call = f"recovery_demonstrations(n={train.POOL_RECOVERY}, seed={train.DATA_SEED})"
+        sets.append((f"{task} recovery pool: {call}", train.POOL_RECOVERY, recovery))
     return sets
 
 
@@ -97,9 +89,8 @@ def inconsistency(train, expected: int, starts, goals, demos) -> str | None:
         return None
     if demos.observations.shape[1] != train.OBS_DIM or len(demos.actions) != len(demos.observations):
         return f"observations have shape {demos.observations.shape}, expected (M, {train.OBS_DIM})"
-    if not np.all(np.isfinite(demos.observations)) or np.abs(demos.actions).max() > train.PROBLEM.u_max * (
-        1 + 1e-6
-    ):
+    finite = np.all(np.isfinite(demos.observations)) and np.all(np.isfinite(demos.actions))
+    if not finite or np.abs(demos.actions).max() > train.PROBLEM.u_max * (1 + 1e-6):
         return "non-finite observations or thrust outside the box"
     if set(np.unique(demos.episode)) != set(range(expected)):
         return "episode indices do not cover every trajectory"
@@ -107,10 +98,10 @@ def inconsistency(train, expected: int, starts, goals, demos) -> str | None:
 
 
 def check(train) -> int:
-    failures = []
+    failures, sets = [], required_sets(train)
     started = time.perf_counter()
     with cache_only():
-        for description, expected, load in required_sets(train):
+        for description, expected, load in sets:
             try:
                 reason = inconsistency(train, expected, *load())
             except Missing:
@@ -124,9 +115,8 @@ def check(train) -> int:
             print(f"  - {failure}", file=sys.stderr)
         print("run `python prepare.py --warm-cache` to build it", file=sys.stderr)
         return 1
-    print(
-        f"prepare.py --check: all {len(required_sets(train))} sets present in {where} ({time.perf_counter() - started:.1f} s)"
-    )
+    elapsed = time.perf_counter() - started
+    print(f"prepare.py --check: all {len(sets)} sets present in {where} ({elapsed:.1f} s)")
     return 0
 
 
