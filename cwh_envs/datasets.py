@@ -80,37 +80,57 @@ class Demonstrations:
         )
 
 
-def demonstrations(task: str, n: int, seed: int = 0, problem=None, cache_dir=None) -> Demonstrations:
+class CacheMiss(LookupError):
+    """A set asked for with ``build=False`` is not in the cache."""
+
+
+def demonstrations(
+    task: str, n: int, seed: int = 0, problem=None, cache_dir=None, *, build: bool = True
+) -> Demonstrations:
     """``n`` screened expert demonstrations for ``task`` ("rendezvous" or "docking"), seed ``seed``.
 
-    Sets are nested: the first k trajectories of a seed's set do not depend on n.
+    Sets are nested: the first k trajectories of a seed's set do not depend on n. With
+    ``build=False`` (every builder here takes it) a set missing from the cache raises
+    :class:`CacheMiss` instead of being built: the fast check of ``prepare.py --check``.
     """
     problem = _problem(task, problem)
     _check_count("n", n)
     _check_seed(seed)
     key = _cache_key("demonstrations", task, problem, n=n, seed=seed)
     return _cached(
-        cache_dir, key, lambda: _build_demonstrations(task, n, _rng(_TRAIN_STREAM, task, seed), problem)
+        cache_dir,
+        key,
+        lambda: _build_demonstrations(task, n, _rng(_TRAIN_STREAM, task, seed), problem),
+        build,
     )
 
 
-def evaluation_starts(task: str, n: int = 128, problem=None, cache_dir=None) -> tuple[np.ndarray, np.ndarray]:
+def evaluation_starts(
+    task: str, n: int = 128, problem=None, cache_dir=None, *, build: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
     """The held-out evaluation set: starts (n, 6) and goals (n, 3) (zeros for rendezvous), all expert-solvable."""
     problem = _problem(task, problem)
     _check_count("n", n)
     key = _cache_key("evaluation", task, problem, n=n)
 
-    def build() -> Demonstrations:
+    def build_held_out() -> Demonstrations:
         held_out = _build_demonstrations(task, n, _rng(_EVAL_STREAM, task, 0), problem)
         _check_disjoint_from_training(task, held_out.starts, problem)
         return held_out
 
-    held_out = _cached(cache_dir, key, build)
+    held_out = _cached(cache_dir, key, build_held_out, build)
     return held_out.starts, held_out.goals
 
 
 def recovery_demonstrations(
-    task: str, n: int, seed: int = 0, problem=None, cache_dir=None, noise=DEFAULT_RECOVERY_NOISE
+    task: str,
+    n: int,
+    seed: int = 0,
+    problem=None,
+    cache_dir=None,
+    noise=DEFAULT_RECOVERY_NOISE,
+    *,
+    build: bool = True,
 ) -> Demonstrations:
     """``n`` expert trajectories from states perturbed off the seed's training trajectories.
 
@@ -129,11 +149,11 @@ def recovery_demonstrations(
         raise ValueError(f"noise must be (position_std, velocity_std) >= 0, got {noise!r}")
     key = _cache_key("recovery", task, problem, n=n, seed=seed, noise=noise)
 
-    def build() -> Demonstrations:
+    def build_recovery() -> Demonstrations:
         sources = demonstrations(task, n, seed, problem, cache_dir)
         return _build_recovery(task, n, sources, _rng(_RECOVERY_STREAM, task, seed), problem, noise)
 
-    return _cached(cache_dir, key, build)
+    return _cached(cache_dir, key, build_recovery, build)
 
 
 def cache_directory(cache_dir=None) -> Path:
@@ -246,13 +266,15 @@ def _check_disjoint_from_training(task: str, held_out: np.ndarray, problem) -> N
 # ---------------------------------------------------------------------------------------- cache
 
 
-def _cached(cache_dir, key: dict, build) -> Demonstrations:
+def _cached(cache_dir, key: dict, build, build_missing: bool) -> Demonstrations:
     text = json.dumps(key, sort_keys=True)
     digest = hashlib.sha256(text.encode()).hexdigest()[:20]
     path = cache_directory(cache_dir) / f"{key['kind']}-{key['task']}-{digest}.npz"
     loaded = _load(path, text)
     if loaded is not None:
         return loaded
+    if not build_missing:
+        raise CacheMiss(f"{key['kind']} set for {key['task']} (n={key.get('n')}) is not in {path.parent}")
     result = build()
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile(

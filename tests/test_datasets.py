@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cwh_envs.datasets import (
+    CacheMiss,
     Demonstrations,
     cache_directory,
     demonstrations,
@@ -148,3 +149,12 @@ def test_recovery_demonstrations_resume_mid_episode(task, tmp_path):
 def test_bad_arguments_raise_clear_value_errors(call, message, tmp_path):
     with pytest.raises(ValueError, match=message):
         call(tmp_path)
+
+
+def test_build_false_reads_the_cache_and_never_builds(tmp_path):
+    with pytest.raises(CacheMiss, match="not in"):
+        demonstrations("rendezvous", 4, seed=0, cache_dir=tmp_path, build=False)
+    assert not list(tmp_path.iterdir())  # nothing was built or written
+    built = demonstrations("rendezvous", 4, seed=0, cache_dir=tmp_path)
+    cached = demonstrations("rendezvous", 4, seed=0, cache_dir=tmp_path, build=False)
+    np.testing.assert_array_equal(built.observations, cached.observations)

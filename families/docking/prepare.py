@@ -14,9 +14,7 @@ import argparse
 import importlib.util
 import sys
 import time
-from contextlib import contextmanager
 from pathlib import Path
-from unittest import mock
 
 import numpy as np
 
@@ -34,15 +32,21 @@ def load_train():
 
 
 def required_sets(train) -> list[tuple[str, int, object]]:
-    """(description, trajectories, loader) per set; a loader returns (starts, goals, demos or None)."""
+    """(description, trajectories, loader) per set.
+
+    A loader takes ``build`` (False: raise datasets.CacheMiss rather than build) and returns
+    (starts, goals, demos or None).
+    """
     task, problem = train.TASK, train.PROBLEM
 
-    def pool():
-        demos = datasets.demonstrations(task, train.POOL_DEMOS, seed=train.DATA_SEED, problem=problem)
+    def pool(build):
+        demos = datasets.demonstrations(
+            task, train.POOL_DEMOS, seed=train.DATA_SEED, problem=problem, build=build
+        )
         return demos.starts, demos.goals, demos
 
-    def held_out():
-        return (*datasets.evaluation_starts(task, train.N_EVAL, problem=problem), None)
+    def held_out(build):
+        return (*datasets.evaluation_starts(task, train.N_EVAL, problem=problem, build=build), None)
 
     call = f"demonstrations(n={train.POOL_DEMOS}, seed={train.DATA_SEED})"
     sets = [
@@ -51,32 +55,15 @@ def required_sets(train) -> list[tuple[str, int, object]]:
     ]
     if hasattr(train, "POOL_RECOVERY"):  # families with a recovery-augmentation knob (docking)
 
-        def recovery():
+        def recovery(build):
             demos = datasets.recovery_demonstrations(
-                task, train.POOL_RECOVERY, seed=train.DATA_SEED, problem=problem
+                task, train.POOL_RECOVERY, seed=train.DATA_SEED, problem=problem, build=build
             )
             return demos.starts, demos.goals, demos
 
         call = f"recovery_demonstrations(n={train.POOL_RECOVERY}, seed={train.DATA_SEED})"
         sets.append((f"{task} recovery pool: {call}", train.POOL_RECOVERY, recovery))
     return sets
-
-
-class Missing(Exception):
-    """A set is not in the cache (raised instead of building it)."""
-
-
-@contextmanager
-def cache_only():
-    """Loaders read the cache as usual, but anything they would build raises :class:`Missing`.
-
-    cwh_envs.datasets has no public "do not build" switch, so its two builders are stubbed.
-    """
-    with (
-        mock.patch.object(datasets, "_build_demonstrations", side_effect=Missing),
-        mock.patch.object(datasets, "_build_recovery", side_effect=Missing),
-    ):
-        yield
 
 
 def inconsistency(train, expected: int, starts, goals, demos) -> str | None:
@@ -100,14 +87,13 @@ def inconsistency(train, expected: int, starts, goals, demos) -> str | None:
 def check(train) -> int:
     failures, sets = [], required_sets(train)
     started = time.perf_counter()
-    with cache_only():
-        for description, expected, load in sets:
-            try:
-                reason = inconsistency(train, expected, *load())
-            except Missing:
-                reason = "missing"
-            if reason:
-                failures.append(f"{description}: {reason}")
+    for description, expected, load in sets:
+        try:
+            reason = inconsistency(train, expected, *load(build=False))
+        except datasets.CacheMiss:
+            reason = "missing"
+        if reason:
+            failures.append(f"{description}: {reason}")
     where = datasets.cache_directory()
     if failures:
         print(f"prepare.py --check: the cache in {where} is incomplete:", file=sys.stderr)
@@ -123,7 +109,7 @@ def check(train) -> int:
 def warm(train) -> int:
     for description, _, load in required_sets(train):
         started = time.perf_counter()
-        load()
+        load(build=True)
         print(f"ready: {description} ({time.perf_counter() - started:.1f} s)", flush=True)
     return check(train)
 
