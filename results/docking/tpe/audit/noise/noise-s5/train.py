@@ -1,0 +1,346 @@
+"""Behaviour cloning of the keep-out docking expert, with an optional run-time CBF (paper Sec. 4.3).
+
+One file, CleanRL style: the editable configuration on top, the fixed machinery below.
+
+    python train.py [--seed 0] [--run-id ID] [--runs-log runs.jsonl] [--out out]
+
+A time-conditioned MLP maps [r, v, g, tau] to thrust / u_max and is trained by MSE on screened
+expert demonstrations (Eq. bc_loss), optionally augmented with recovery demonstrations from
+perturbed states. It is then flown in closed loop from the 128 held-out far-side starts at once
+on the env's own (A, B), through the two-step predictive CBF filter when RUNTIME_CBF_FILTER is
+on. The primary metric is score = mean terminal distance + 10 x mean keep-out violation rate
+(Eq. rpo_score, lower is better); a run is strict-feasible when success >= 0.80, the violation
+rate is exactly 0 and the minimum keep-out clearance is >= 0. The run ends with one line
+``FINAL_METRIC: {json}`` that is also appended to the runs log.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import random
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import torch
+from filelock import FileLock
+from torch import nn
+
+from cwh_envs.cbf import safe_actions
+from cwh_envs.datasets import demonstrations, evaluation_starts, recovery_demonstrations
+from cwh_envs.observations import docking_observation
+from cwh_envs.problems import DockingProblem
+
+# ===== Editable Configuration (the agent may change these values only) =====
+N_DEMOS = 64  # expert trajectories in the training set (the first N of a fixed screened pool)
+EPOCHS = 60  # passes over the training set
+LEARNING_RATE = 0.001  # AdamW peak learning rate, annealed to 0 by a cosine schedule
+BATCH_SIZE = 256  # state-action pairs per gradient step
+WEIGHT_DECAY = 0.0  # AdamW decoupled weight decay
+GRAD_CLIP = 1.0  # maximum global L2 norm of the gradient
+HIDDEN_DIM = 128  # units in each hidden layer
+N_LAYERS = 2  # hidden layers
+ACTIVATION = "tanh"  # hidden nonlinearity: "tanh", "relu" or "gelu"
+DROPOUT = 0.0  # dropout probability after each hidden layer (training only)
+RUNTIME_CBF_FILTER = True  # fly through the two-step predictive CBF safety filter
+RECOVERY_AUGMENT_FRAC = 0.0  # recovery trajectories added, as a fraction of N_DEMOS
+# ===== Fixed Configuration (immutable below this line) =====
+
+TASK = "docking"
+METRIC = "score"
+PROBLEM = DockingProblem()  # every constant: horizon, u_max, keep-out, margin, thresholds, (A, B)
+VIOLATION_WEIGHT = 10.0  # Eq. rpo_score: one sustained violation outweighs the accuracy budget
+POOL_DEMOS = 256  # the N_DEMOS upper bound: one fixed pool, so a warm cache covers every config
+MAX_RECOVERY_FRAC = 0.5  # the RECOVERY_AUGMENT_FRAC upper bound
+POOL_RECOVERY = round(MAX_RECOVERY_FRAC * POOL_DEMOS)  # recovery trajectories: also one fixed pool
+N_EVAL = 128  # held-out, screened far-side evaluation starts
+DATA_SEED = 0  # the pools do not move with --seed; the seed varies only initialisation and batching
+TORCH_THREADS = 1  # fixed: reproducible on any host, and the audit runs two trainings on two cores
+SUCCESS_GATE = 0.80  # strict feasibility: success rate floor (with zero violations, clearance >= 0)
+OBS_DIM, ACT_DIM = 10, 3
+CONFIG_NAMES = (
+    "N_DEMOS",
+    "EPOCHS",
+    "LEARNING_RATE",
+    "BATCH_SIZE",
+    "WEIGHT_DECAY",
+    "GRAD_CLIP",
+    "HIDDEN_DIM",
+    "N_LAYERS",
+    "ACTIVATION",
+    "DROPOUT",
+    "RUNTIME_CBF_FILTER",
+    "RECOVERY_AUGMENT_FRAC",
+)
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
+
+
+class Policy(nn.Module):
+    """MLP on standardised observations; outputs thrust / u_max. ``act`` returns clipped newtons."""
+
+    def __init__(self, config: dict, obs_mean: torch.Tensor, obs_std: torch.Tensor, u_max: float):
+        super().__init__()
+        layers, width = [], OBS_DIM
+        for _ in range(config["N_LAYERS"]):
+            layers += [
+                nn.Linear(width, config["HIDDEN_DIM"]),
+                ACTIVATIONS[config["ACTIVATION"]](),
+                nn.Dropout(config["DROPOUT"]),
+            ]
+            width = config["HIDDEN_DIM"]
+        self.net = nn.Sequential(*layers, nn.Linear(width, ACT_DIM))
+        self.register_buffer("obs_mean", obs_mean.float())
+        self.register_buffer("obs_std", obs_std.float())
+        self.u_max = u_max
+
+    def forward(self, standardised_obs: torch.Tensor) -> torch.Tensor:
+        return self.net(standardised_obs)
+
+    @torch.no_grad()
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Observations (N, 10) in env units -> thrust (N, 3) in newtons, saturated to the box."""
+        x = torch.as_tensor(obs, dtype=torch.float32, device=self.obs_mean.device)
+        u = self.u_max * self((x - self.obs_mean) / self.obs_std)
+        return np.clip(u.double().cpu().numpy(), -self.u_max, self.u_max)
+
+
+def build_policy(config: dict, obs_mean=None, obs_std=None) -> Policy:
+    """A fresh policy for ``config``; identity standardisation unless statistics are given."""
+    mean = torch.zeros(OBS_DIM) if obs_mean is None else torch.as_tensor(obs_mean)
+    std = torch.ones(OBS_DIM) if obs_std is None else torch.as_tensor(obs_std)
+    return Policy(config, mean, std, PROBLEM.u_max)
+
+
+def load_policy(path: str | os.PathLike) -> tuple[Policy, dict]:
+    """A saved policy (an --out directory or its policy.pt), in eval mode, and the saved dict."""
+    path = Path(path)
+    saved = torch.load(path / "policy.pt" if path.is_dir() else path, map_location="cpu", weights_only=True)
+    policy = build_policy(saved["config"], saved["obs_mean"], saved["obs_std"])
+    policy.load_state_dict(saved["state_dict"])
+    return policy.eval(), saved
+
+
+def check_config(config: dict) -> None:
+    """Refuse values the machinery cannot run (the search space in family.json is the finer bound)."""
+    problems = []
+    if not (isinstance(config["N_DEMOS"], int) and 1 <= config["N_DEMOS"] <= POOL_DEMOS):
+        problems.append(f"N_DEMOS must be an int in [1, {POOL_DEMOS}]")
+    for name in ("EPOCHS", "BATCH_SIZE", "HIDDEN_DIM", "N_LAYERS"):
+        if not (isinstance(config[name], int) and not isinstance(config[name], bool) and config[name] >= 1):
+            problems.append(f"{name} must be a positive int")
+    for name in ("LEARNING_RATE", "GRAD_CLIP"):
+        if not (isinstance(config[name], int | float) and math.isfinite(config[name]) and config[name] > 0):
+            problems.append(f"{name} must be a positive finite number")
+    if not (isinstance(config["WEIGHT_DECAY"], int | float) and 0 <= config["WEIGHT_DECAY"] < math.inf):
+        problems.append("WEIGHT_DECAY must be a non-negative finite number")
+    if not (isinstance(config["DROPOUT"], int | float) and 0 <= config["DROPOUT"] < 1):
+        problems.append("DROPOUT must lie in [0, 1)")
+    if config["ACTIVATION"] not in ACTIVATIONS:
+        problems.append(f"ACTIVATION must be one of {sorted(ACTIVATIONS)}")
+    if not isinstance(config["RUNTIME_CBF_FILTER"], bool):
+        problems.append("RUNTIME_CBF_FILTER must be True or False")
+    frac = config["RECOVERY_AUGMENT_FRAC"]
+    if not (isinstance(frac, int | float) and 0 <= frac <= MAX_RECOVERY_FRAC):
+        problems.append(f"RECOVERY_AUGMENT_FRAC must lie in [0, {MAX_RECOVERY_FRAC}]")
+    if problems:
+        raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
+
+
+def seed_everything(seed: int) -> torch.device:
+    random.seed(seed)
+    np.random.seed(seed)  # noqa: NPY002 -- for any library code that draws from the legacy global RNG
+    torch.manual_seed(seed)
+    torch.set_num_threads(TORCH_THREADS)
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # needed by deterministic cuBLAS
+    torch.use_deterministic_algorithms(True)
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Observations (M, 10) and expert thrust (M, 3) [N]: N_DEMOS demos plus the recovery share."""
+    demos = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM).take(config["N_DEMOS"])
+    obs, actions = [demos.observations], [demos.actions]
+    n_recovery = round(config["RECOVERY_AUGMENT_FRAC"] * config["N_DEMOS"])
+    if n_recovery > 0:
+        recovery = recovery_demonstrations(TASK, POOL_RECOVERY, seed=DATA_SEED, problem=PROBLEM).take(
+            n_recovery
+        )
+        obs.append(recovery.observations)
+        actions.append(recovery.actions)
+    return np.concatenate(obs), np.concatenate(actions)
+
+
+def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int):
+    """MSE behaviour cloning (Eq. bc_loss); returns the policy and the best epoch-mean loss."""
+    mean, std = obs.mean(axis=0), obs.std(axis=0)
+    std = np.where(std > 1e-8, std, 1.0)  # a constant input column stays finite
+    policy = build_policy(config, mean, std).to(device)
+    x = torch.as_tensor((obs - mean) / std, dtype=torch.float32, device=device)
+    y = torch.as_tensor(actions / PROBLEM.u_max, dtype=torch.float32, device=device)
+    optimizer = torch.optim.AdamW(
+        policy.parameters(), lr=config["LEARNING_RATE"], weight_decay=config["WEIGHT_DECAY"]
+    )
+    steps_per_epoch = math.ceil(len(x) / config["BATCH_SIZE"])
+    total_steps = config["EPOCHS"] * steps_per_epoch
+    # Cosine from the peak rate to 0 over the whole run: one fixed schedule, no warm-up.
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total_steps))
+    )
+    generator = torch.Generator(device="cpu").manual_seed(seed)
+    best_loss = math.inf
+    policy.train()
+    for epoch in range(config["EPOCHS"]):
+        order = torch.randperm(len(x), generator=generator).to(device)
+        epoch_loss = torch.zeros((), device=device)
+        for start in range(0, len(x), config["BATCH_SIZE"]):
+            batch = order[start : start + config["BATCH_SIZE"]]
+            loss = (policy(x[batch]) - y[batch]).square().sum(dim=1).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            nn.utils.clip_grad_norm_(policy.parameters(), config["GRAD_CLIP"])
+            optimizer.step()
+            schedule.step()
+            epoch_loss += loss.detach() * len(batch)
+        epoch_loss = epoch_loss.item() / len(x)
+        if not math.isfinite(epoch_loss):
+            raise SystemExit(f"train.py: training diverged: loss is {epoch_loss} at epoch {epoch + 1}")
+        best_loss = min(best_loss, epoch_loss)
+    return policy.eval(), best_loss
+
+
+def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool) -> tuple[np.ndarray, int, int]:
+    """Closed-loop states (N, H+1, 6) of every start at once on the env's (A, B); no expert in the loop.
+
+    With ``cbf`` every command passes the two-step predictive CBF filter first; also returns how
+    many (start, step) commands the filter edited and how many it could not make safe.
+    """
+    a, b = PROBLEM.matrices()
+    horizon = PROBLEM.horizon
+    states = np.empty((len(starts), horizon + 1, 6))
+    states[:, 0] = starts
+    edited = unsafe = 0
+    for k in range(horizon):
+        u = policy.act(docking_observation(states[:, k], goals, k, horizon))
+        if cbf:
+            filtered = safe_actions(
+                u,
+                states[:, k],
+                a,
+                b,
+                koz_radius=PROBLEM.koz_radius,
+                margin=PROBLEM.margin,
+                u_max=PROBLEM.u_max,
+            )
+            u = filtered.u
+            edited += int(filtered.active.sum())
+            unsafe += int(filtered.infeasible.sum())
+        states[:, k + 1] = states[:, k] @ a.T + u @ b.T
+    return states, edited, unsafe
+
+
+def docking_metrics(states: np.ndarray, goals: np.ndarray) -> dict:
+    """Eq. rpo_score and the strict gate from trajectories (N, H+1, 6); the env's own definitions:
+    a violation is a step ending strictly inside the keep-out sphere, counted over steps 1..H."""
+    terminal_distance = np.linalg.norm(states[:, -1, :3] - goals, axis=1)
+    terminal_speed = np.linalg.norm(states[:, -1, 3:], axis=1)
+    clearance = np.linalg.norm(states[:, 1:, :3], axis=2) - PROBLEM.koz_radius  # (N, H)
+    violation_rate = (clearance < 0.0).mean(axis=1)
+    success = (
+        (terminal_distance < PROBLEM.success_distance)
+        & (terminal_speed < PROBLEM.success_speed)
+        & (violation_rate == 0.0)
+    )
+    mean_violation = float(violation_rate.mean())
+    min_clearance = float(clearance.min())
+    success_rate = float(success.mean())
+    return {
+        METRIC: float(terminal_distance.mean()) + VIOLATION_WEIGHT * mean_violation,
+        "mean_terminal_distance": float(terminal_distance.mean()),
+        "success_rate": success_rate,
+        "violation_rate": mean_violation,
+        "min_clearance": min_clearance,
+        "strict_feasible": bool(
+            success_rate >= SUCCESS_GATE and mean_violation == 0.0 and min_clearance >= 0.0
+        ),
+        "violating_starts": int((violation_rate > 0).sum()),
+        "median_terminal_distance": float(np.median(terminal_distance)),
+        "max_terminal_distance": float(terminal_distance.max()),
+        "mean_terminal_speed": float(terminal_speed.mean()),
+    }
+
+
+def evaluate(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool) -> dict:
+    states, edited, unsafe = fly(policy, starts, goals, cbf)
+    return {
+        **docking_metrics(states, goals),
+        "cbf_active_rate": edited / (len(starts) * PROBLEM.horizon),
+        "cbf_infeasible_steps": unsafe,
+    }
+
+
+def append_record(path: Path, record: dict) -> None:
+    """One write of the whole line under a lock, flushed and fsynced: concurrent runs interleave safely."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    line = json.dumps(record, allow_nan=False) + "\n"
+    with FileLock(f"{path}.lock"), open(path, "a", encoding="utf-8") as log:
+        log.write(line)
+        log.flush()
+        os.fsync(log.fileno())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--run-id", default=None, help="defaults to a fresh random id")
+    parser.add_argument("--runs-log", type=Path, default=Path(__file__).with_name("runs.jsonl"))
+    parser.add_argument("--out", type=Path, default=Path("out"), help="directory for policy.pt")
+    args = parser.parse_args()
+    config = {name: globals()[name] for name in CONFIG_NAMES}
+    check_config(config)
+    run_id = args.run_id or uuid.uuid4().hex[:12]
+    device = seed_everything(args.seed)
+
+    obs, actions = load_training_set(config)
+    eval_starts, eval_goals = evaluation_starts(TASK, N_EVAL, problem=PROBLEM)
+    started = time.perf_counter()
+    policy, best_loss = train(config, obs, actions, device, args.seed)
+    train_seconds = time.perf_counter() - started
+    started = time.perf_counter()
+    metrics = evaluate(policy, eval_starts, eval_goals, config["RUNTIME_CBF_FILTER"])
+    eval_seconds = time.perf_counter() - started
+
+    record = {
+        "run_id": run_id,
+        **metrics,
+        "best_train_loss": best_loss,
+        "train_seconds": round(train_seconds, 3),
+        "eval_seconds": round(eval_seconds, 3),
+        "n_params": sum(p.numel() for p in policy.parameters()),
+        "n_train_pairs": len(obs),
+        "seed": args.seed,
+        "config": config,
+    }
+    args.out.mkdir(parents=True, exist_ok=True)
+    torch.save(
+        {
+            "task": TASK,
+            "config": config,
+            "state_dict": {k: v.cpu() for k, v in policy.state_dict().items()},
+            "obs_mean": policy.obs_mean.cpu(),
+            "obs_std": policy.obs_std.cpu(),
+            "problem": PROBLEM.as_dict(),
+            "record": record,
+        },
+        args.out / "policy.pt",
+    )
+    append_record(args.runs_log, record)
+    print("FINAL_METRIC: " + json.dumps(record, allow_nan=False), flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
