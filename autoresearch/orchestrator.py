@@ -39,7 +39,7 @@ from autoresearch.runner import (
 )
 from autoresearch.space import ValidationError
 from autoresearch.stopping import Budgets, closest_trigger, first_trigger, stop_gate
-from autoresearch.verdicts import verdict
+from autoresearch.verdicts import run_verdict
 
 # Every proposals.jsonl record has exactly these keys, in this order.
 RECORD_KEYS = (
@@ -388,14 +388,14 @@ class Orchestrator:
         }
         if result.ok:
             feasible = family.is_feasible(result.record)
-            if intent["proposer"] == BASELINE_PROPOSER:
-                judged = "baseline"
-            elif not feasible:
-                judged = "infeasible"
-            elif state.best_metric is None:
-                judged = "no prior best"
-            else:
-                judged = verdict(result.metric, state.best_metric, family.direction, family.sigma)
+            judged = run_verdict(
+                result.metric,
+                feasible=feasible,
+                is_baseline=intent["proposer"] == BASELINE_PROPOSER,
+                prior_best=state.best_metric,
+                direction=family.direction,
+                sigma=family.sigma,
+            )
             fields.update(
                 status="ran", metric=result.metric, feasible=feasible, record=result.record, verdict=judged
             )

@@ -38,6 +38,19 @@ def verdict(metric: float, prior_best: float, direction: int, sigma: float | Non
     return WITHIN_NOISE
 
 
+def run_verdict(
+    metric: float, *, feasible: bool, is_baseline: bool, prior_best: float | None, direction: int, sigma
+) -> str:
+    """The verdict recorded for a run that ran: baseline, infeasible, no prior best, or Eq. perrun."""
+    if is_baseline:
+        return "baseline"
+    if not feasible:
+        return "infeasible"
+    if prior_best is None:
+        return "no prior best"
+    return verdict(metric, prior_best, direction, sigma)
+
+
 def plateau(
     runs: Sequence[tuple[float, bool]], direction: int, window: int, kappa: float, sigma: float | None
 ) -> bool:

@@ -32,7 +32,7 @@ from autoresearch.orchestrator import BASELINE_HYPOTHESIS, RECORD_KEYS, run_id_f
 from autoresearch.proposers.base import ProposerContext
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.space import NUMERIC_TYPES
-from autoresearch.verdicts import verdict
+from autoresearch.verdicts import run_verdict
 
 MATCHED_AXIS = "training_budget"
 PROPOSER = "random"
@@ -123,14 +123,14 @@ def _record(family: Family, state: CampaignState, iteration: int, config: dict, 
     )
     if row["status"] == "ok":
         feasible = row["feasible"]
-        if baseline:
-            judged = "baseline"
-        elif not feasible:
-            judged = "infeasible"
-        elif state.best_metric is None:
-            judged = "no prior best"
-        else:
-            judged = verdict(row["metric"], state.best_metric, family.direction, family.sigma)
+        judged = run_verdict(
+            row["metric"],
+            feasible=feasible,
+            is_baseline=baseline,
+            prior_best=state.best_metric,
+            direction=family.direction,
+            sigma=family.sigma,
+        )
         record.update(
             status="ran", metric=row["metric"], feasible=feasible, record=row["record"], verdict=judged
         )
