@@ -14,8 +14,19 @@ import anthropic
 import httpx2
 import openai
 
+from autoresearch import prompting
 from autoresearch.context import shown_registry
 from autoresearch.proposers.base import ProposerContext
+
+# The paper's context order (Sec. 3.3), as both proposers must render it.
+SECTIONS = (
+    prompting.WARNINGS,
+    prompting.PROGRAM,
+    prompting.REGISTRY,
+    prompting.RANDOM_ARM,
+    prompting.HISTORY,
+    prompting.CURRENT,
+)
 
 # Distinctive numbers, so the blind-mode test can search the whole request for them.
 TARGET = 0.7123

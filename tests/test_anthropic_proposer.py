@@ -10,6 +10,7 @@ from llm_support import (
     BASELINE_METRIC,
     PROPOSAL_INPUT,
     REGISTRY,
+    SECTIONS,
     STOP_INPUT,
     TARGET,
     FakeServer,
@@ -20,19 +21,9 @@ from llm_support import (
     tool_use,
 )
 
-from autoresearch import prompting
 from autoresearch.pricing import Price
 from autoresearch.proposers.anthropic_api import DEFAULT_MODEL, AnthropicProposer
 from autoresearch.proposers.tools import PROPOSE, STOP
-
-SECTIONS = (
-    prompting.WARNINGS,
-    prompting.PROGRAM,
-    prompting.REGISTRY,
-    prompting.RANDOM_ARM,
-    prompting.HISTORY,
-    prompting.CURRENT,
-)
 
 
 def _proposer(server: FakeServer, **kwargs) -> AnthropicProposer:

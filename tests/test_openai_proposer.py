@@ -9,6 +9,7 @@ from llm_support import (
     BASELINE_METRIC,
     PROPOSAL_INPUT,
     REGISTRY,
+    SECTIONS,
     STOP_INPUT,
     TARGET,
     FakeServer,
@@ -18,19 +19,9 @@ from llm_support import (
     retry_soon,
 )
 
-from autoresearch import prompting
 from autoresearch.pricing import Price
 from autoresearch.proposers.openai_api import DEFAULT_MODEL, OpenAIProposer
 from autoresearch.proposers.tools import PROPOSE, STOP
-
-SECTIONS = (
-    prompting.WARNINGS,
-    prompting.PROGRAM,
-    prompting.REGISTRY,
-    prompting.RANDOM_ARM,
-    prompting.HISTORY,
-    prompting.CURRENT,
-)
 
 PROPOSE_CALL = (PROPOSE, json.dumps(PROPOSAL_INPUT))
 
