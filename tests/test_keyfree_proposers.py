@@ -58,18 +58,24 @@ def test_tpe_observations_failures_and_infeasible_runs():
     registry = json.loads((TOY_FAMILY / "family.json").read_text())
     tpe = TPEProposer(registry, seed=1, n_startup_trials=2)
     base = json.loads((TOY_FAMILY / "family.json").read_text())["baseline"]["config"]
+    tpe.tell({**base, "EPOCHS": 1}, None, False)
+    assert [t.state.name for t in tpe.trials] == ["FAIL"]  # nothing succeeded yet: no crash cost
     tpe.tell(base, 0.8, True)
     tpe.tell({**base, "EPOCHS": 0}, None, False)
     tpe.tell({**base, "MOMENTUM": 0.99, "LEARNING_RATE": 0.05}, 0.5, False)
-    states = [t.state.name for t in tpe.trials]
-    assert states == ["COMPLETE", "FAIL", "COMPLETE"]
-    assert [t.constraints for t in tpe.trials if t.state.name == "COMPLETE"] == [
-        {"feasible": 0.0},
-        {"feasible": 1.0},
+    trials = tpe.trials
+    assert [t.state.name for t in trials] == ["COMPLETE"] * 4
+    # Failures sit at the worst metric seen (the toy minimises: the highest), marked infeasible.
+    assert [t.value for t in trials] == [0.8, 0.8, 0.8, 0.5]
+    assert [t.constraints["feasible"] for t in trials] == [1.0, 0.0, 1.0, 1.0]
+    history = [
+        {**base, "EPOCHS": 1},
+        base,
+        {**base, "EPOCHS": 0},
+        {**base, "MOMENTUM": 0.99, "LEARNING_RATE": 0.05},
     ]
-    history = [base, {**base, "EPOCHS": 0}, {**base, "MOMENTUM": 0.99, "LEARNING_RATE": 0.05}]
-    first = tpe.propose(context(history, iteration=4))
-    again = tpe.propose(context(history, iteration=4))
+    first = tpe.propose(context(history, iteration=5))
+    again = tpe.propose(context(history, iteration=5))
     assert first.kind == "propose" and first.overrides == again.overrides  # a function of seed and history
     assert set(first.overrides) == set(base)
     with pytest.raises(ValueError):

@@ -8,8 +8,12 @@ asks exactly what an uninterrupted one would have.
 Outcomes: a successful feasible run is a COMPLETE trial with its metric; a successful but
 infeasible run is a COMPLETE trial with its metric and a violated constraint, which Optuna's TPE
 ranks below every feasible trial (penalised, yet its location still informs the model); a
-failed or timed-out run is a FAIL trial, which TPE ignores. TPE searches the full declared
-bounds (a parameter's ``random_range`` is for the random arm only).
+failed or timed-out run is told as an infeasible trial at the worst metric seen so far (SMAC's
+"crash cost"), so TPE learns to avoid regions that diverge or overrun the per-run time limit;
+before any run has succeeded there is no worst metric and it is a FAIL trial, which TPE ignores.
+Without the crash cost, a search space with slow corners keeps TPE in its random start-up phase
+(FAIL trials do not count towards it) and spends the budget on timeouts. TPE searches the full
+declared bounds (a parameter's ``random_range`` is for the random arm only).
 """
 
 from __future__ import annotations
@@ -56,42 +60,55 @@ class TPEProposer(Proposer):
         self.seed = seed
         self.n_startup_trials = n_startup_trials
         self.distributions = {name: _distribution(p) for name, p in self.space.params.items()}
-        self.trials: list[FrozenTrial] = []
+        self.outcomes: list[tuple[dict[str, Any], float | None, bool]] = []
 
     def tell(self, overrides: dict[str, Any], metric: float | None, feasible: bool) -> None:
-        """``overrides`` is the full configuration that ran."""
-        params = self.space.validate_full(overrides)
-        if metric is None:
-            trial = optuna.trial.create_trial(
-                state=TrialState.FAIL, params=params, distributions=self.distributions
-            )
-        else:
-            trial = optuna.trial.create_trial(
-                value=metric,
-                params=params,
-                distributions=self.distributions,
-                constraints={"feasible": 0.0 if feasible else 1.0},
-            )
-        self.trials.append(trial)
+        """``overrides`` is the full configuration that ran; ``metric`` is None for a failed run."""
+        self.outcomes.append((self.space.validate_full(overrides), metric, feasible))
 
-    def _ask(self, attempt: int) -> dict[str, Any]:
+    @property
+    def trials(self) -> list[FrozenTrial]:
+        """The outcomes as Optuna trials, failures at the current crash cost."""
+        metrics = [metric for _, metric, _ in self.outcomes if metric is not None]
+        crash_cost = (max if self.study_direction == "minimize" else min)(metrics) if metrics else None
+        trials = []
+        for params, metric, feasible in self.outcomes:
+            if metric is None and crash_cost is None:
+                trials.append(
+                    optuna.trial.create_trial(
+                        state=TrialState.FAIL, params=params, distributions=self.distributions
+                    )
+                )
+                continue
+            trials.append(
+                optuna.trial.create_trial(
+                    value=crash_cost if metric is None else metric,
+                    params=params,
+                    distributions=self.distributions,
+                    constraints={"feasible": 0.0 if metric is not None and feasible else 1.0},
+                )
+            )
+        return trials
+
+    def _ask(self, trials: list[FrozenTrial], attempt: int) -> dict[str, Any]:
         sampler = optuna.samplers.TPESampler(
-            seed=_derived_seed("tpe", self.seed, len(self.trials), attempt),
+            seed=_derived_seed("tpe", self.seed, len(trials), attempt),
             n_startup_trials=self.n_startup_trials,
         )
         study = optuna.create_study(direction=self.study_direction, sampler=sampler)
-        study.add_trials(self.trials)
+        study.add_trials(trials)
         return self.space.validate_full(study.ask(self.distributions).params)
 
     def propose(self, context: ProposerContext) -> Proposal:
         seen = seen_configs(context)
+        trials = self.trials
         for attempt in range(MAX_ASKS):
-            config = self._ask(attempt)
+            config = self._ask(trials, attempt)
             if canonical_key(config) not in seen:
-                hypothesis = f"TPE suggestion after {len(self.trials)} observations"
+                hypothesis = f"TPE suggestion after {len(trials)} observations"
                 return full_config_proposal(self.space, config, context, hypothesis)
         # TPE keeps landing on known points (a small discrete space): fall back to an unseen random draw.
-        rng = random.Random(_derived_seed("tpe-fallback", self.seed, len(self.trials)))
+        rng = random.Random(_derived_seed("tpe-fallback", self.seed, len(self.outcomes)))
         for _ in range(MAX_DRAWS):
             config = self.space.sample(rng)
             if canonical_key(config) not in seen:
