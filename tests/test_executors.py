@@ -83,14 +83,21 @@ def test_pool_results_are_identical_to_serial(toy, serial_rows, tmp_path):
     assert len(read_jsonl(tmp_path / "runs.jsonl")) == 6
 
 
-def test_run_trials_skips_logged_runs_and_retries_failures(toy, tmp_path):
+def test_run_trials_skips_logged_runs_and_retries_failures(toy, tmp_path, capsys):
     bad = {**toy.baseline_config, "EPOCHS": 0}  # the toy family's failure mode
     trials = [Trial("good", toy.baseline_config, 1), Trial("bad", bad, 1)]
     rows = run_trials(toy, trials, LocalExecutor(2), tmp_path / "log.jsonl", tmp_path, 60)
     assert [r["status"] for r in rows] == ["ok", "failed"] and "EPOCHS" in rows[1]["reason"]
+    progress = capsys.readouterr().err.splitlines()
+    assert progress[0] == "[log] 2 of 2 runs to do"
+    assert [line.split()[1] for line in progress[1:]] == ["1/2", "2/2"]  # one line per run, as it ends
+    assert sorted(line.split()[2] for line in progress[1:]) == ["bad", "good"]
     rows = run_trials(toy, trials, LocalExecutor(2), tmp_path / "log.jsonl", tmp_path, 60)
     logged = sorted(r["key"] for r in read_jsonl(tmp_path / "log.jsonl"))
     assert logged == ["bad", "bad", "good"]  # only the failure ran again
+    progress = capsys.readouterr().err.splitlines()
+    assert progress[0] == "[log] 1 of 2 runs to do"
+    assert progress[1].startswith("[log] 2/2 bad failed")
 
 
 def test_a_logged_key_counts_only_for_the_configuration_it_ran(toy, tmp_path):

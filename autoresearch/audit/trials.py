@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from autoresearch.audit.progress import TrialProgress
 from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import Journal
@@ -80,7 +81,7 @@ def run_trials(
     """Rows for ``trials`` in order, running only those not already logged as ok (for that config).
 
     Run directories go under ``root``; train.py appends its records to ``runs_log`` (default
-    root/runs.jsonl).
+    root/runs.jsonl). Progress, named after the log's stem, goes to stderr.
     """
     keys = [t.key for t in trials]
     if len(set(keys)) != len(keys):
@@ -98,6 +99,12 @@ def run_trials(
     todo = [t for t in trials if t.key not in done]
     runs_log = (runs_log or root / "runs.jsonl").resolve()
     fn = functools.partial(run_trial, family, root.resolve(), runs_log, timeout)
-    fresh = executor.map(fn, todo, on_result=lambda _, row: journal.append(row))
+    with TrialProgress(log_path.stem, len(trials), len(trials) - len(todo)) as progress:
+
+        def record(_: int, row: dict[str, Any]) -> None:
+            journal.append(row)
+            progress.advance(row)
+
+        fresh = executor.map(fn, todo, on_result=record)
     done.update({row["key"]: row for row in fresh})
     return [done[key] for key in keys]
