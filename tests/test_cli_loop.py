@@ -65,6 +65,34 @@ def test_tpe_campaign_end_to_end(toy, tmp_path, capsys):
     assert "ended: stopped (max_iters)" in capsys.readouterr().out
 
 
+def test_enqueued_configurations_run_first_then_tpe_takes_over(toy, tmp_path, capsys):
+    queue = tmp_path / "queue.json"
+    queue.write_text(json.dumps([{"EPOCHS": 30, "ACTIVATION": "relu"}, {"LEARNING_RATE": 0.05}]))
+    campaign = tmp_path / "c"
+    args = ("--family", toy, "--proposer", "tpe", "--plateau-window", 20, "--campaign", campaign)
+    assert loop(*args, "--enqueue", queue, "--max-iters", 2) == 0
+    assert loop("--resume", "--campaign", campaign, "--max-iters", 6) == 0  # the queue is in campaign.json
+    records = [r for r in read_jsonl(campaign / "proposals.jsonl") if r["status"] == "ran"]
+    baseline = json.loads((toy / "family.json").read_text())["baseline"]["config"]
+    assert [r["config"] for r in records[:3]] == [
+        baseline,
+        {**baseline, "EPOCHS": 30, "ACTIVATION": "relu"},
+        {**baseline, "LEARNING_RATE": 0.05},
+    ]
+    hypotheses = [r["proposal"]["annotation"]["hypothesis"] for r in records[1:]]
+    assert ["enqueued" in h for h in hypotheses] == [True, True, False, False]  # the second after the resume
+    assert len(records) == 5 and all(h.startswith("TPE suggestion") for h in hypotheses[2:])
+    assert len({json.dumps(r["config"], sort_keys=True) for r in records}) == 5  # each ran once
+
+    queue.write_text(json.dumps({"EPOCHS": 999}))
+    assert loop("--family", toy, "--proposer", "tpe", "--enqueue", queue, "--campaign", tmp_path / "d") == 2
+    assert "--enqueue entry 1" in capsys.readouterr().err and not (tmp_path / "d").exists()
+    queue.write_text("[")
+    with pytest.raises(SystemExit):
+        loop("--family", toy, "--proposer", "tpe", "--enqueue", queue)
+    assert "--enqueue" in capsys.readouterr().err
+
+
 def test_bad_input_is_refused_with_exit_code_2(toy, tmp_path, capsys):
     assert loop("--family", tmp_path / "nope", "--proposer", "random") == 2
     assert "no family" in capsys.readouterr().err

@@ -20,6 +20,7 @@ from autoresearch.live import make_view
 from autoresearch.orchestrator import LoopSettings, Orchestrator
 from autoresearch.proposers import KEY_FREE, PROPOSERS, make_proposer
 from autoresearch.proposers.base import Proposer
+from autoresearch.proposers.enqueued import EnqueuedProposer, full_queue, read_queue
 from autoresearch.stopping import Budgets
 
 # Settings a campaign keeps in campaign.json; on --resume, flags given again override them.
@@ -37,6 +38,7 @@ DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "timeout_per_run": 3600.0,
     "random_arm": None,
+    "enqueue": None,
 }
 API_KEYS = {"anthropic": "ANTHROPIC_API_KEY", "openai": "OPENAI_API_KEY"}
 
@@ -56,6 +58,13 @@ def _positive(kind):
         return value
 
     return parse
+
+
+def _queue_file(path: str) -> list[dict[str, Any]]:
+    try:
+        return read_queue(path)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -92,6 +101,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--timeout-per-run", type=_positive(float), help="wall-clock limit of one run, s (default 3600)"
     )
     p.add_argument("--random-arm", help="a random-search campaign dir whose summary the proposer is shown")
+    p.add_argument(
+        "--enqueue",
+        type=_queue_file,
+        metavar="FILE",
+        help="JSON object or list of {NAME: value} maps (applied to the baseline) to run first, "
+        "like Optuna's enqueue_trial; kept in campaign.json",
+    )
     p.add_argument(
         "--campaign", help="campaign directory (default runs/<family>-<proposer>-<YYYYmmdd-HHMMSS>)"
     )
@@ -185,6 +201,9 @@ def build_loop(meta: dict[str, Any]) -> tuple[Family, Proposer, LoopSettings]:
         model=settings["model"],
         base_url=settings["base_url"],
     )
+    if settings["enqueue"]:
+        queue = full_queue(family.space, family.baseline_config, settings["enqueue"])
+        proposer = EnqueuedProposer(queue, proposer, family.space)
     if settings["random_arm"] and not Path(settings["random_arm"]).is_dir():
         raise UsageError(f"--random-arm {settings['random_arm']}: not a directory")
     loop = LoopSettings(
