@@ -33,15 +33,15 @@ TOY = Path(__file__).resolve().parents[1] / "tests" / "toy_family"
 ITERATIONS, NOISE_SEEDS, TOP, SEEDS = 8, 6, 2, 6
 
 
-def make_campaign(where: Path) -> Path:
-    """A private toy family and an 8-experiment random-search campaign on it (no sleep)."""
+def make_campaign(where: Path, iterations: int = ITERATIONS) -> Path:
+    """A private toy family and a random-search campaign of up to ``iterations`` iterations on it."""
     shutil.copytree(TOY, where / "family", ignore=shutil.ignore_patterns("runs.jsonl*", "__pycache__"))
     family = Family.load(where / "family")
     root = where / "campaign"
     root.mkdir()
     meta = {"family": str(family.path), "family_name": family.name, "proposer": "random"}
     write_json_atomic(root / "campaign.json", {**meta, "settings": {"timeout_per_run": 120.0, "seed": 0}})
-    budgets = Budgets(max_iters=ITERATIONS, plateau_window=10**6)
+    budgets = Budgets(max_iters=iterations, plateau_window=10**6)
     Orchestrator(family, RandomProposer(family.registry, 0), root, LoopSettings("random", budgets)).run()
     return root
 
@@ -56,6 +56,15 @@ def audit(root: Path, executor: Executor) -> tuple[float, int]:
     wall = time.monotonic() - started
     logs = [*(root / "audit").glob("*/*.jsonl"), root.parent / f"{root.name}-random" / "trials.jsonl"]
     return wall, sum(len(read_jsonl(log)) for log in logs if log.name != "runs.jsonl")
+
+
+def audit_walls(roots: dict[int, Path], sleep: float) -> dict[int, tuple[float, int]]:
+    """{workers: audit() of roots[workers]} with a local executor, train.py sleeping ``sleep`` s."""
+    os.environ["TOY_SLEEP_S"] = str(sleep)
+    try:
+        return {w: audit(root, LocalExecutor(w)) for w, root in roots.items()}
+    finally:
+        os.environ["TOY_SLEEP_S"] = "0"
 
 
 def ray_overhead(where: Path, n_tasks: int) -> tuple[float, float, float] | None:
@@ -91,9 +100,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         roots = {w: make_campaign(Path(tempfile.mkdtemp(dir=tmp))) for w in (1, 2)}
-        os.environ["TOY_SLEEP_S"] = str(args.sleep)
-        results = {w: audit(root, LocalExecutor(w)) for w, root in roots.items()}
-        os.environ["TOY_SLEEP_S"] = "0"
+        results = audit_walls(roots, args.sleep)
         ray = ray_overhead(roots[1].parent, args.ray_tasks)
     print(
         f"audit of a {ITERATIONS}-experiment toy campaign (noise K={NOISE_SEEDS}, verify top {TOP} x {SEEDS} "

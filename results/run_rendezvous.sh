@@ -17,7 +17,7 @@ autoresearch loop --family rendezvous --proposer tpe --seed 0 --max-runs 40 --ma
   --plateau-window 1000 --max-failures 12 --timeout-per-run 150 --campaign "$campaign" --plain \
   "${resume[@]}" &
 loop=$!
-until [ -f "$campaign/campaign.json" ]; do sleep 2; done
+until [ -f "$campaign/proposals.jsonl" ]; do sleep 2; done  # the arm reads the started campaign
 autoresearch random --budget-from "$campaign" --count 40 --out "$campaign-random" &
 arm=$!
 wait "$loop" "$arm"

@@ -1,0 +1,337 @@
+"""Every benchmark the project tracks, in one Markdown table.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/run_all.py [--quick] [--tuned] [--out PATH]
+
+Reuses the measurements of bench_envs.py, bench_experts_cbf.py and bench_audit.py; times each
+family's train.py through autoresearch.runner, the loop's own path (a patched copy in a
+temporary run directory, run as a subprocess); measures the loop's overhead per iteration on a
+temporary copy of the toy family; and reads TPE vs random from the committed campaign logs in
+results/ (nothing is run for that row). A few minutes; ``--quick`` shortens every measurement
+(a smoke test, not numbers to quote); ``--tuned`` adds one tuned experiment per family (docking's
+takes 5-13 minutes on a 2-core CPU). Progress goes to stderr, the table to stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from importlib.metadata import version
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from bench_audit import audit_walls, make_campaign
+from bench_envs import NATIVE_ENVS, SYNC_ENVS, bench_single, bench_vector
+from bench_experts_cbf import cbf_measure, docking_expert_run, rendezvous_expert_time
+
+from autoresearch.campaign import CampaignPaths, CampaignState
+from autoresearch.family import Family
+from autoresearch.journal import read_jsonl
+from autoresearch.runner import run_experiment
+
+ROOT = Path(__file__).resolve().parents[1]
+FAMILIES = ("rendezvous", "docking")
+ENV_IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v0")
+NATIVE = NATIVE_ENVS[0]
+TUNED = {
+    "rendezvous": {"N_DEMOS": 1024, "EPOCHS": 50, "HIDDEN_DIM": 256, "N_LAYERS": 4, "ACTIVATION": "gelu"},
+    "docking": {
+        "N_DEMOS": 256,
+        "EPOCHS": 120,
+        "LEARNING_RATE": 0.002,
+        "BATCH_SIZE": 128,
+        "HIDDEN_DIM": 256,
+        "N_LAYERS": 4,
+        "ACTIVATION": "gelu",
+        "RECOVERY_AUGMENT_FRAC": 0.5,
+    },
+}
+BASELINE_TIMEOUT_S, TUNED_TIMEOUT_S = 300.0, 1800.0
+
+Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
+Runs = list[tuple[float | None, bool]]  # (metric, or None for a failed run; feasible) per experiment
+
+
+@dataclass(frozen=True)
+class Settings:
+    env_seconds: float  # per env measurement
+    cbf_repeats: tuple[int, int]  # best-of repeats: batched, proxsuite
+    rendezvous_repeats: int
+    docking_demos: int
+    loop_iterations: int
+    audit_sleep_s: float
+
+
+FULL = Settings(2.0, (50, 3), 3, 128, 10, 0.3)
+QUICK = Settings(0.3, (5, 1), 1, 16, 4, 0.05)
+
+
+class Progress:
+    """One line per section on stderr, with the seconds since the start."""
+
+    def __init__(self) -> None:
+        self.started = time.monotonic()
+
+    def __call__(self, message: str) -> None:
+        print(f"[{time.monotonic() - self.started:6.1f} s] {message}", file=sys.stderr, flush=True)
+
+
+def env_rows(seconds: float) -> list[Row]:
+    rows = []
+    for env_id in ENV_IDS:
+        sync = bench_vector(env_id, SYNC_ENVS, "sync", seconds)
+        measured = {
+            "single env (gym.make)": bench_single(env_id, seconds),
+            f"SyncVectorEnv x{SYNC_ENVS}": sync,
+            f"native vector env x{NATIVE}": bench_vector(env_id, NATIVE, "vector_entry_point", seconds),
+        }
+        for name, (total, stepping) in measured.items():
+            ratio = f"{stepping / sync[1]:.1f}x vs Sync ({total / sync[0]:.1f}x incl. resets)"
+            if name.startswith("Sync"):
+                ratio = "reference"
+            note = "target >= 100x stepping only" if name.startswith("native") else ""
+            rows.append(
+                (
+                    f"{env_id}, {name}: env-steps/s",
+                    f"{stepping:,.0f} ({total:,.0f} incl. resets)",
+                    ratio,
+                    note,
+                )
+            )
+    return rows
+
+
+def cbf_rows(repeats: tuple[int, int]) -> list[Row]:
+    m = cbf_measure(np.random.default_rng(0), repeats=repeats[0], qp_repeats=repeats[1])
+    return [
+        (
+            "CBF filtered actions/s, batched exact `safe_actions`",
+            f"{m.n / m.batched_s:,.0f}",
+            f"{m.proxsuite_s / m.batched_s:.0f}x vs proxsuite (target >= 100x)",
+            f"{m.n} docking states; max difference {m.gap:.1e} N",
+        ),
+        ("CBF filtered actions/s, one proxsuite QP per action", f"{m.n / m.proxsuite_s:,.0f}", "", ""),
+    ]
+
+
+def expert_rows(settings: Settings) -> list[Row]:
+    rendezvous = rendezvous_expert_time(repeats=settings.rendezvous_repeats)
+    _, _, solutions, docking = docking_expert_run(settings.docking_demos)
+    failures = sum(s is None for s in solutions)
+    return [
+        (
+            "rendezvous expert, ms per accepted demonstration",
+            f"{1e3 * rendezvous:.2f} ms",
+            "target <= 2 ms",
+            "",
+        ),
+        (
+            "docking expert (SCP), ms per demonstration",
+            f"{1e3 * docking:.1f} ms",
+            "target <= 58 ms",
+            f"{len(solutions)} screened starts, {failures} failed",
+        ),
+    ]
+
+
+def experiment_row(name: str, overrides: dict[str, Any], label: str, where: Path, timeout: float) -> Row:
+    """Wall time of one run of the family's train.py at its baseline plus ``overrides``."""
+    family = Family.load(ROOT / "families" / name)
+    run_dir = where / f"{name}-{label}"
+    result = run_experiment(
+        family,
+        {**family.baseline_config, **overrides},
+        run_id=f"bench-{label}",
+        seed=family.default_seed,
+        run_dir=run_dir,
+        runs_log=where / "runs.jsonl",
+        timeout=timeout,
+    )
+    what = f"{label} experiment wall time, {name}"
+    config = ", ".join(f"{k}={v}" for k, v in overrides.items())
+    if not result.ok:
+        return (what, result.status, "", (result.reason or "")[:200])
+    note = f"{family.metric} {result.metric:.4g}" + (f"; {config}" if config else "")
+    return (what, f"{result.wall_seconds:.1f} s", "target < 30 s" if label == "baseline" else "", note)
+
+
+def experiment_rows(tuned: bool, where: Path, progress: Progress) -> list[Row]:
+    rows = []
+    for name in FAMILIES:
+        progress(f"baseline experiment, {name}")
+        rows.append(experiment_row(name, {}, "baseline", where, BASELINE_TIMEOUT_S))
+    for name in FAMILIES:
+        if tuned:
+            progress(f"tuned experiment, {name}")
+            rows.append(experiment_row(name, TUNED[name], "tuned", where, TUNED_TIMEOUT_S))
+        else:
+            rows.append((f"tuned experiment wall time, {name}", "skipped (--tuned)", "", ""))
+    return rows
+
+
+def loop_row(iterations: int, where: Path) -> Row:
+    """The loop's own time per experiment: its clock minus its runs' wall times, key-free proposer."""
+    records = read_jsonl(make_campaign(where, iterations) / "proposals.jsonl")
+    runs = [r for r in records if r["status"] in ("ran", "failed")]
+    loop_s = records[-1]["elapsed_s"]  # the orchestrator's own clock at its last record
+    run_s = sum(r["wall_seconds"] for r in runs)
+    return (
+        "orchestrator overhead per iteration (no training, no LLM)",
+        f"{1e3 * (loop_s - run_s) / len(runs):.0f} ms",
+        "",
+        f"toy family, random proposer, {len(runs)} runs: loop {loop_s:.1f} s - runs {run_s:.1f} s",
+    )
+
+
+def audit_row(sleep: float, where: Path) -> Row:
+    roots = {w: make_campaign(Path(tempfile.mkdtemp(dir=where))) for w in (1, 2)}
+    results = audit_walls(roots, sleep)
+    (one, runs), (two, _) = results[1], results[2]
+    return (
+        "audit wall time, 2 workers vs 1",
+        f"{two:.1f} s vs {one:.1f} s",
+        f"{two / one:.2f}x (target <= 0.6x)",
+        f"toy campaign audit, {runs} runs, train.py sleeps {sleep:g} s",
+    )
+
+
+@dataclass(frozen=True)
+class Reach:
+    best: float | None  # the random arm's best; None when it has no successful run
+    random_at: int | None  # 1-based experiment at which each arm's best-so-far first reached it
+    tpe_at: int | None  # None: never within its budget
+    fell_back: tuple[str, ...]  # arms with no feasible run, judged on all their successful runs
+
+
+def counted(runs: Runs) -> tuple[list[tuple[int, float]], bool]:
+    """(1-based experiment, metric) of the runs an arm's best is taken over, and whether it fell
+    back: its feasible successful runs, or every successful run when none is feasible."""
+    feasible_only = any(metric is not None and feasible for metric, feasible in runs)
+    pairs = [
+        (i, metric)
+        for i, (metric, feasible) in enumerate(runs, start=1)
+        if metric is not None and (feasible or not feasible_only)
+    ]
+    return pairs, not feasible_only
+
+
+def experiments_to_reach(tpe: Runs, random: Runs, direction: int) -> Reach:
+    """When each arm first matched the random arm's best (direction: +1 maximise, -1 minimise)."""
+    tpe_pairs, tpe_fell = counted(tpe)
+    random_pairs, random_fell = counted(random)
+    fell_back = tuple(arm for arm, fell in (("TPE", tpe_fell), ("random", random_fell)) if fell)
+    if not random_pairs:
+        return Reach(None, None, None, fell_back)
+    best = max((m for _, m in random_pairs), key=lambda m: direction * m)
+
+    def first(pairs: list[tuple[int, float]]) -> int | None:
+        return next((i for i, m in pairs if direction * m >= direction * best), None)
+
+    return Reach(best, first(random_pairs), first(tpe_pairs), fell_back)
+
+
+def arm_runs(family: Family, campaign: Path) -> tuple[Runs, bool]:
+    """(metric or None, feasible) of every experiment of a campaign in iteration order, and
+    whether the campaign has finished. Feasible per the family's ``feasibility_field``."""
+    state = CampaignState.from_records(family, read_jsonl(CampaignPaths(campaign).proposals))
+    runs = [
+        (r["metric"], family.is_feasible(r["record"])) if r["status"] == "ran" else (None, False)
+        for r in state.records
+        if r["status"] in ("ran", "failed")
+    ]
+    return runs, state.finished
+
+
+def tpe_rows() -> list[Row]:
+    rows = []
+    for name in FAMILIES:
+        what = f"TPE vs random, {name}: experiments to reach random's best"
+        arms = {arm: ROOT / "results" / name / arm for arm in ("tpe", "tpe-random")}
+        if not all(CampaignPaths(d).proposals.exists() for d in arms.values()):
+            rows.append((what, "not run", "", f"needs results/{name}/{{tpe,tpe-random}}/proposals.jsonl"))
+            continue
+        family = Family.load(ROOT / "families" / name)
+        (tpe, tpe_done), (random, random_done) = (arm_runs(family, d) for d in arms.values())
+        reach = experiments_to_reach(tpe, random, family.direction)
+        if reach.best is None:
+            rows.append((what, "n/a", "", "the random arm has no successful run"))
+            continue
+        field = family.feasibility_field
+        basis = f" over its {field} runs" if field and "random" not in reach.fell_back else ""
+        notes = [f"random best {family.metric} {reach.best:.4g}{basis}"]
+        if reach.fell_back:
+            which = " and ".join(reach.fell_back) + (" arms" if len(reach.fell_back) > 1 else " arm")
+            notes.append(f"no feasible run in the {which}: every successful run counted")
+        notes += [
+            f"{arm} campaign in progress"
+            for arm, done in (("TPE", tpe_done), ("random", random_done))
+            if not done
+        ]
+        rows.append(
+            (
+                what,
+                f"TPE {reach.tpe_at or 'never'}, random {reach.random_at}",
+                f"of {len(tpe)} / {len(random)} experiments",
+                "; ".join(notes),
+            )
+        )
+    return rows
+
+
+def machine_line() -> str:
+    return (
+        f"{os.cpu_count()} CPUs (load average {os.getloadavg()[0]:.2f}), Python {platform.python_version()}, "
+        f"torch {version('torch')}, numpy {np.__version__}, "
+        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, "
+        f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC"
+    )
+
+
+def table(rows: list[Row]) -> str:
+    lines = ["| what | measured | ratio / comparison | note |", "|---|---|---|---|"]
+    # A failed run's note quotes its stderr: keep every cell on one line and inside its column.
+    cells = [[c.replace("\n", " ").replace("|", "\\|") for c in row] for row in rows]
+    lines += [f"| {' | '.join(row)} |" for row in cells]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="short measurements: a smoke test")
+    parser.add_argument("--tuned", action="store_true", help="also time a tuned experiment per family")
+    parser.add_argument("--out", type=Path, help="also write the table as Markdown to this file")
+    args = parser.parse_args()
+    settings = QUICK if args.quick else FULL
+    progress = Progress()
+    rows: list[Row] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        progress("env throughput")
+        rows += env_rows(settings.env_seconds)
+        progress("CBF filter")
+        rows += cbf_rows(settings.cbf_repeats)
+        progress("experts")
+        rows += expert_rows(settings)
+        rows += experiment_rows(args.tuned, tmp, progress)
+        progress("orchestrator overhead")
+        rows.append(loop_row(settings.loop_iterations, Path(tempfile.mkdtemp(dir=tmp))))
+        progress("audit, 1 and 2 workers")
+        rows.append(audit_row(settings.audit_sleep_s, tmp))
+        progress("TPE vs random, from results/")
+        rows += tpe_rows()
+    progress("done")
+    text = f"{machine_line()}\n\n{table(rows)}\n"
+    print(text, end="")
+    if args.out:
+        args.out.write_text(text, encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
