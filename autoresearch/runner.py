@@ -17,8 +17,10 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -33,6 +35,9 @@ POLL_S = 0.05
 STDERR_TAIL = 600
 
 RunStatus = Literal["ok", "failed", "timeout"]
+
+# Set by a signal while interruptible_runs() is active: every run in flight, in any thread, stops.
+_INTERRUPTED = threading.Event()
 
 
 @dataclass(frozen=True)
@@ -126,6 +131,28 @@ def _terminate(proc: subprocess.Popen) -> None:
     proc.wait()
 
 
+@contextmanager
+def interruptible_runs() -> Iterator[None]:
+    """While active (main thread only), SIGINT and SIGTERM stop every run in flight, in any worker
+    thread, killing its process group, then raise KeyboardInterrupt in the main thread.
+
+    Without it a terminated pool leaves its training runs orphaned: they sit in their own sessions.
+    """
+
+    def interrupt(signum, frame):
+        _INTERRUPTED.set()
+        raise KeyboardInterrupt
+
+    _INTERRUPTED.clear()
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        _INTERRUPTED.clear()
+
+
 def run_in_group(
     cmd: list[str],
     *,
@@ -150,6 +177,8 @@ def run_in_group(
         if on_start is not None:
             on_start(proc.pid)
         while proc.poll() is None:
+            if _INTERRUPTED.is_set():
+                raise KeyboardInterrupt
             elapsed = time.monotonic() - started
             if elapsed > timeout:
                 _terminate(proc)

@@ -186,3 +186,26 @@ def test_crash_windows_around_a_retry_and_before_an_intent(tmp_path, monkeypatch
     assert records[2]["interrupted_run_ids"] == ["it0003", "it0003-r2"]
     assert "superseded" in read_json(campaign / "runs" / "it0003" / "interrupted.json")["reason"]
     assert "re-run as it0003-r3" in read_json(campaign / "runs" / "it0003-r2" / "interrupted.json")["reason"]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_an_audit_command_stopped_by_a_signal_leaves_no_run_behind(tmp_path, sig):
+    toy = copy_toy(tmp_path)
+    out = tmp_path / "noise"
+    cmd = [sys.executable, "-m", "autoresearch", "noise", "--family", str(toy), "--seeds", "4"]
+    slow = {**os.environ, "TOY_SLEEP_S": "60"}
+    proc = subprocess.Popen(
+        [*cmd, "--workers", "2", "--out", str(out)],
+        env=slow,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    deadline = time.monotonic() + 30
+    while len(list(out.glob("*/process.json"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(list(out.glob("*/process.json"))) == 2  # two runs in flight, each in its own session
+    time.sleep(0.5)
+    proc.send_signal(sig)
+    _, stderr = proc.communicate(timeout=20)
+    assert proc.returncode == 130 and b"run the same command again to resume" in stderr
+    assert processes_under(out) == []  # both training processes were killed with the command

@@ -11,6 +11,7 @@ from autoresearch.campaign import CampaignError
 from autoresearch.executors import Executor, make_executor
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
+from autoresearch.runner import interruptible_runs
 
 
 def positive_int(text: str) -> int:
@@ -24,9 +25,10 @@ def positive_int(text: str) -> int:
 
 
 def run_command(name: str, args: argparse.Namespace, body: Callable[[Executor], None]) -> int:
-    """Run ``body`` with the executor the flags choose; errors become one line and exit code 2."""
+    """Run ``body`` with the executor the flags choose; errors become one line and exit code 2, and
+    SIGINT / SIGTERM stop the runs in flight (they are retried when the command is run again)."""
     try:
-        with make_executor(args) as executor:
+        with interruptible_runs(), make_executor(args) as executor:
             body(executor)
     except KeyboardInterrupt:
         print(f"\nautoresearch {name}: interrupted; run the same command again to resume", file=sys.stderr)
