@@ -328,8 +328,7 @@ def prune_section(campaign: Campaign, prune: dict[str, Any]) -> list[str]:
     if pruned and "mu_r" in pruned:
         lines.append(
             f"Pruned recipe re-verified at seeds {prune['reverify_seeds']}: "
-            f"{_mean_sd(pruned['mu_r'], pruned['sigma_r'], pruned['n'])}, m = {pruned['margin']:.2f}, "
-            f"target retained: {prune['target_retained']}."
+            f"{_mean_sd(pruned['mu_r'], pruned['sigma_r'], pruned['n'])}, m = {pruned['margin']:.2f}."
         )
     lines.append(f"**{prune['reason'][0].upper() + prune['reason'][1:]}.**")
     return lines

@@ -55,7 +55,8 @@ def test_report_has_the_audit_table_in_the_papers_shape(audited):
         assert row in text
     assert "95% Welch CI [" in text and "It is not the single-seed best" in text
     assert "| DAGGER | optimizer | 0 → 1 | +2.87 | +2.00 | drop† |" in text
-    assert "clears the gate and keeps the target" in text
+    # The full recipe (1.297) missed the toy target (1.1), so the pruned one had none to keep.
+    assert "clears the gate and has no target to keep (the full recipe did not reach it either)" in text
 
 
 def test_report_figures_are_non_trivial_pngs(audited):

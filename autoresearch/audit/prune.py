@@ -23,6 +23,7 @@ from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import assess
 from autoresearch.executors import Executor
 from autoresearch.journal import read_json
+from autoresearch.verdicts import reaches_target
 
 STEP = "prune"
 N_PROBES = 2  # Eq. loodecision: one probe seed, escalated to two
@@ -137,9 +138,12 @@ def prune(campaign: Campaign, executor: Executor, *, n_seeds: int | None = None)
         )
     part.update(pruned=pruned, published=publish, target_retained=retained)
     if publish:
-        part["reason"] = (
-            f"the pruned recipe (without {', '.join(dropped)}) clears the gate and keeps the target"
+        kept = (
+            "keeps the target"
+            if reaches_target(full["mu_r"], family.target, sign)
+            else "has no target to keep (the full recipe did not reach it either)"
         )
+        part["reason"] = f"the pruned recipe (without {', '.join(dropped)}) clears the gate and {kept}"
         _attach_distilled(campaign, full, pruned, dropped)
     else:
         lost = pruned["reason"] if not pruned["passed"] else "it loses the target the full recipe reached"
