@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Issue 7 evidence for rendezvous, key-free: a 40-experiment TPE campaign and a 40-draw random arm
 # from the shared baseline, side by side on the two cores, then the audit of the TPE campaign
-# (top 3 reseeded at 10 fresh seeds, leave-one-out pruning, re-verification, random-arm verdict).
+# (top 2 reseeded at 10 fresh seeds, leave-one-out pruning, re-verification, random-arm verdict).
 # Every run is capped at 150 s of wall-clock (karpathy/autoresearch's fixed-budget idea): Table 1's
 # rendezvous space reaches runs of hours on one CPU thread, and a capped run counts as failed.
 # Run as: bash results/run_rendezvous.sh > results/logs/rendezvous.txt 2>&1
@@ -24,4 +24,7 @@ until [ -f "$campaign/proposals.jsonl" ]; do sleep 2; done  # the arm reads the 
 autoresearch random --budget-from "$campaign" --count 40 --out "$campaign-random" &
 arm=$!
 wait "$loop" "$arm"
-autoresearch audit --campaign "$campaign" --top 3 --seeds 10 --count 40 --workers 2
+autoresearch audit --campaign "$campaign" --top 2 --seeds 10 --count 40 --workers 2
+# Random search beat TPE here, so the random arm's best is reseeded and pruned as well.
+autoresearch verify --campaign "$campaign-random" --top 1 --seeds 10 --workers 2
+autoresearch prune --campaign "$campaign-random" --workers 2
