@@ -193,6 +193,7 @@ def run_random_arm(
         paths.runs_dir,
         campaign.timeout,
         paths.runs_log,
+        label="random",
     )
     journal = Journal(paths.proposals)
     state = CampaignState.from_records(family, journal.read())

@@ -77,11 +77,12 @@ def run_trials(
     root: Path,
     timeout: float,
     runs_log: Path | None = None,
+    label: str | None = None,
 ) -> list[dict[str, Any]]:
     """Rows for ``trials`` in order, running only those not already logged as ok (for that config).
 
     Run directories go under ``root``; train.py appends its records to ``runs_log`` (default
-    root/runs.jsonl). Progress, named after the log's stem, goes to stderr.
+    root/runs.jsonl). Progress, named ``label`` (default: the log's stem), goes to stderr.
     """
     keys = [t.key for t in trials]
     if len(set(keys)) != len(keys):
@@ -99,7 +100,7 @@ def run_trials(
     todo = [t for t in trials if t.key not in done]
     runs_log = (runs_log or root / "runs.jsonl").resolve()
     fn = functools.partial(run_trial, family, root.resolve(), runs_log, timeout)
-    with TrialProgress(log_path.stem, len(trials), len(trials) - len(todo)) as progress:
+    with TrialProgress(label or log_path.stem, len(trials), len(trials) - len(todo)) as progress:
 
         def record(_: int, row: dict[str, Any]) -> None:
             journal.append(row)
