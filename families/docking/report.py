@@ -11,7 +11,6 @@ train.py's own, with the CBF filter exactly as the saved configuration sets it.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 from pathlib import Path
 
@@ -23,16 +22,9 @@ import numpy as np
 
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.experts import solve_docking
+from cwh_envs.prepare import load_train
 
 HERE = Path(__file__).resolve().parent
-
-
-def load_train():
-    """train.py as a module (its run is guarded by ``__main__``)."""
-    spec = importlib.util.spec_from_file_location(f"{HERE.name}_train", HERE / "train.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def main() -> int:
@@ -41,7 +33,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--starts", type=int, default=5, help="held-out starts to fly (the first n)")
     args = parser.parse_args()
-    train = load_train()
+    train = load_train(HERE)
     problem = train.PROBLEM
     policy, saved = train.load_policy(args.policy)
     cbf = saved["config"]["RUNTIME_CBF_FILTER"]

@@ -9,7 +9,6 @@ position norm over the 800 s horizon. The closed loop is train.py's own (same mo
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import sys
 from pathlib import Path
 
@@ -21,16 +20,9 @@ import numpy as np
 
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.experts import solve_rendezvous
+from cwh_envs.prepare import load_train
 
 HERE = Path(__file__).resolve().parent
-
-
-def load_train():
-    """train.py as a module (its run is guarded by ``__main__``)."""
-    spec = importlib.util.spec_from_file_location(f"{HERE.name}_train", HERE / "train.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def main() -> int:
@@ -39,7 +31,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--starts", type=int, default=5, help="held-out starts to fly (the first n)")
     args = parser.parse_args()
-    train = load_train()
+    train = load_train(HERE)
     policy, saved = train.load_policy(args.policy)
     starts, _ = evaluation_starts(train.TASK, train.N_EVAL, problem=train.PROBLEM)
     starts = starts[: args.starts]
