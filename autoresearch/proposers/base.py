@@ -56,6 +56,9 @@ class ProposerContext:
     random_arm_summary: a compact text summary of a random-search arm, when one exists.
     history: the campaign's runs as dicts (blind mode: only {"config", <metric>} pairs).
     current_values: the editable values the next overrides apply to (the best configuration).
+    running: experiments started but not finished yet (``loop --workers K``), as dicts with
+        at least ``iteration``, ``run_id``, ``overrides``, ``config`` and ``hypothesis``; a
+        proposer must not repeat them and an Optuna-backed one treats them as pending trials.
     """
 
     iteration: int
@@ -66,6 +69,7 @@ class ProposerContext:
     history: tuple[dict[str, Any], ...]
     current_values: dict[str, Any]
     blind: bool = False
+    running: tuple[dict[str, Any], ...] = ()
 
 
 class Proposer(ABC):
