@@ -1,7 +1,9 @@
 """Load and validate a family directory (docs/family-contract.md).
 
-A :class:`Family` is read-only: autoresearch reads these files and never writes under the
-family directory. Every error names the file and field that is missing or invalid.
+autoresearch writes under a family directory only two fields of its family.json, through
+``autoresearch noise`` (seed_noise) and ``autoresearch verify`` / ``prune`` (best); campaigns and
+their runs live outside it (:meth:`Family.check_outside`). Every error names the file and field
+that is missing or invalid.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +21,8 @@ from autoresearch.space import SearchSpace, SpaceError, ValidationError
 
 REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")
 DIRECTIONS = {"maximize": +1, "minimize": -1}
+# A family name becomes part of paths (runs/<name>-...): a plain file name, nothing to escape.
+PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
 class FamilyError(ValueError):
@@ -76,6 +81,15 @@ class Family:
         """The measured seed noise (std of the metric), when ``autoresearch noise`` has run."""
         return self.seed_noise["std"] if self.seed_noise else None
 
+    def check_outside(self, directory: str | os.PathLike[str]) -> None:
+        """Refuse a campaign or run directory at or under the family directory, which holds only the
+        family's own files (docs/family-contract.md)."""
+        resolved = Path(directory).resolve()
+        if resolved == self.path or self.path in resolved.parents:
+            raise FamilyError(
+                f"{directory}: inside the family directory {self.path}; put campaigns and runs outside it"
+            )
+
     def is_feasible(self, record: dict[str, Any]) -> bool:
         """A run counts as best or as reaching the target only when its feasibility field is true."""
         field = self.feasibility_field
@@ -117,6 +131,11 @@ def _check_registry(registry: Any, where: Path) -> SearchSpace:
     for field in ("name", "metric"):
         if not isinstance(registry.get(field), str) or not registry[field]:
             raise bad(field, "must be a non-empty string")
+    if not PLAIN_NAME.fullmatch(registry["name"]) or ".." in registry["name"]:
+        raise bad(
+            "name",
+            f"must be a plain name (letters, digits, '_', '-', '.'; no '/' or '..'), got {registry['name']!r}",
+        )
     if registry.get("direction") not in DIRECTIONS:
         raise bad("direction", f"must be 'maximize' or 'minimize', got {registry.get('direction')!r}")
     if registry.get("target") is not None and not _number(registry["target"]):

@@ -33,7 +33,7 @@ def run_command(name: str, args: argparse.Namespace, body: Callable[[Executor], 
     except KeyboardInterrupt:
         print(f"\nautoresearch {name}: interrupted; run the same command again to resume", file=sys.stderr)
         return 130
-    except (AuditError, CampaignError, FamilyError, JournalError, RuntimeError, ValueError) as err:
+    except (AuditError, CampaignError, FamilyError, JournalError, RuntimeError, ValueError, OSError) as err:
         print(f"autoresearch {name}: error: {err}", file=sys.stderr)
         return 2
     return 0

@@ -11,6 +11,7 @@ from autoresearch.audit.noise import measure_noise, record_existing_noise
 from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.verify import verify
+from autoresearch.campaign_lock import CampaignLock
 from autoresearch.commands.prune import print_prune
 from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import print_verify
@@ -43,6 +44,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
+        with CampaignLock(args.campaign, "audit"):
+            steps(executor)
+
+    def steps(executor) -> None:
         # Each step re-opens the campaign: the previous one may have written the family's
         # seed_noise or best.
         campaign = open_campaign(args.campaign)

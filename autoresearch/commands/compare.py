@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         arms = load_arms(specs)
         report = write_comparison(arms, out, budget=args.budget, sigma=args.sigma)
-    except (CompareError, JournalError) as err:
+    except (CompareError, JournalError, OSError) as err:  # OSError: an --out it cannot create
         print(f"autoresearch compare: error: {err}", file=sys.stderr)
         return 2
     text = report.read_text(encoding="utf-8")

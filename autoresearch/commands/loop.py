@@ -12,6 +12,7 @@ from typing import Any
 
 from autoresearch import repeats
 from autoresearch.campaign import CampaignError, CampaignPaths
+from autoresearch.campaign_lock import CampaignLock
 from autoresearch.context import shown_registry
 from autoresearch.executors import add_executor_arguments, make_executor
 from autoresearch.family import Family, FamilyError, resolve_family
@@ -172,7 +173,7 @@ def _plan(args: argparse.Namespace) -> tuple[Path, dict[str, Any]]:
     family = resolve_family(args.family)
     proposer = args.proposer or _default_proposer()
     root = Path(args.campaign or f"runs/{family.name}-{proposer}-{now.astimezone():%Y%m%d-%H%M%S}")
-    if root.exists() and any(root.iterdir()):
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise UsageError(f"{root} already exists; continue it with --resume --campaign {root}")
     meta = {
         "family": str(family.path),
@@ -234,9 +235,10 @@ def run(args: argparse.Namespace) -> int:
             )
         root, meta = _plan(args)
         family, proposer, loop = build_loop(meta)
-        root.mkdir(parents=True, exist_ok=True)
+        family.check_outside(root)
+        lock = CampaignLock(root, "loop", create=True).acquire()  # one process per campaign
         write_json_atomic(CampaignPaths(root).campaign_json, meta)
-    except (UsageError, FamilyError, ValueError, ImportError) as err:
+    except (UsageError, FamilyError, CampaignError, ValueError, ImportError) as err:
         print(f"autoresearch loop: error: {err}", file=sys.stderr)
         return 2
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
@@ -251,6 +253,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     finally:
         signal.signal(signal.SIGTERM, previous)
+        lock.release()
     best = outcome.best
     best_text = f"{best['metric']:.6g} ({best['run_id']})" if best else "none (no feasible run)"
     print(f"campaign: {root}")
@@ -290,8 +293,10 @@ def _run_repeats(args: argparse.Namespace) -> int:
             root, family=family, proposer=proposer, settings=settings, repeats=args.repeats, session=session
         )
         build_loop(group.tasks[0].meta)  # refuse bad settings before anything runs
+        family.check_outside(root)
+        lock = CampaignLock(root, "loop", create=True).acquire()
         group.write()
-    except (UsageError, FamilyError, ValueError, ImportError) as err:
+    except (UsageError, FamilyError, CampaignError, ValueError, ImportError) as err:
         print(f"autoresearch loop: error: {err}", file=sys.stderr)
         return 2
     resume_hint = f"autoresearch loop --resume --campaign {root}"
@@ -304,6 +309,8 @@ def _run_repeats(args: argparse.Namespace) -> int:
     except (RuntimeError, ValueError) as err:
         print(f"autoresearch loop: error: {err}", file=sys.stderr)
         return 2
+    finally:
+        lock.release()
     print(f"group: {root} ({proposer}, {len(outcomes)} repeats, seeds {group.meta['seeds']})")
     for outcome in outcomes:
         print("  " + repeats.describe(outcome, family.metric))

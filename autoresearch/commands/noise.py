@@ -8,6 +8,7 @@ from pathlib import Path
 from autoresearch.audit.commandline import positive_int, run_command
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import default_noise_dir, measure_noise
+from autoresearch.campaign_lock import CampaignLock
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
 
@@ -35,6 +36,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
         family = resolve_family(args.family)
+        out = None if args.campaign else args.out or default_noise_dir(family)
+        if out is not None:
+            family.check_outside(out)
+        # The runs go into the campaign, or into out, a directory of the same kind.
+        with CampaignLock(args.campaign or out, "noise", create=out is not None):
+            measure(executor, family, out)
+
+    def measure(executor, family, out) -> None:
         campaign = open_campaign(args.campaign) if args.campaign else None
         if campaign is not None and campaign.family.path != family.path:
             raise ValueError(f"{args.campaign} is a campaign of {campaign.family.path}, not of {family.path}")
@@ -43,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
             executor,
             k=args.seeds,
             campaign=campaign,
-            out_dir=args.out or default_noise_dir(family),
+            out_dir=out,
             timeout=args.timeout_per_run,
         )
         print(

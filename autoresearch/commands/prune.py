@@ -7,6 +7,7 @@ import argparse
 from autoresearch.audit.commandline import positive_int, run_command
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.prune import prune
+from autoresearch.campaign_lock import CampaignLock
 from autoresearch.executors import add_executor_arguments
 
 
@@ -41,6 +42,7 @@ def print_prune(part: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
-        print_prune(prune(open_campaign(args.campaign), executor, n_seeds=args.seeds))
+        with CampaignLock(args.campaign, "prune"):
+            print_prune(prune(open_campaign(args.campaign), executor, n_seeds=args.seeds))
 
     return run_command("prune", args, body)

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from autoresearch.audit.commandline import positive_int, run_command
 from autoresearch.audit.inputs import open_campaign
-from autoresearch.audit.random_arm import run_random_arm
+from autoresearch.audit.random_arm import default_arm_dir, run_random_arm
+from autoresearch.campaign_lock import CampaignLock
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
 
@@ -48,7 +49,14 @@ def print_random(part: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
-        campaign = open_campaign(args.budget_from)
+        with CampaignLock(args.budget_from, "random"):
+            campaign = open_campaign(args.budget_from)
+            out = args.out or default_arm_dir(campaign, args.matched_range)
+            campaign.family.check_outside(out)
+            with CampaignLock(out, "random", create=True):
+                run_arm(executor, campaign, out)
+
+    def run_arm(executor, campaign, out) -> None:
         if args.family and resolve_family(args.family).path != campaign.family.path:
             raise ValueError(
                 f"{args.budget_from} is a campaign of {campaign.family.path}, not of {args.family}"
@@ -59,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
             count=args.count,
             matched_range=args.matched_range,
             seed=args.seed,
-            out=args.out,
+            out=out,
         )
         print_random(part)
 

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from autoresearch.audit.inputs import AuditError
+from autoresearch.campaign_check import trail_problems
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
 from autoresearch.report import write_report
@@ -21,15 +22,38 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "confidence interval, the pruning decisions, and the search and recipe figures.",
         epilog="Example: autoresearch report --campaign runs/docking-llm --arm runs/docking-tpe",
     )
-    p.add_argument("--campaign", required=True, help="campaign directory")
+    p.add_argument("--campaign", required=True, type=Path, help="campaign directory")
     p.add_argument("--arm", action="append", type=Path, default=[], help="another arm to plot (repeatable)")
     p.add_argument("--out", type=Path, help="output directory (default: the campaign directory)")
     return p
 
 
+def _refusal(args: argparse.Namespace) -> str | None:
+    """Why the report cannot be written from these inputs, or None."""
+    campaign = args.campaign
+    if not campaign.is_dir():
+        what = "is not a directory" if campaign.exists() else "does not exist"
+        return f"{campaign} {what}; expected a campaign directory"
+    for arm in args.arm:
+        if not arm.is_dir():
+            return f"--arm {arm}: not a campaign directory"
+    problems = trail_problems(campaign)  # duplicated or missing iterations would skew every figure
+    if problems:
+        return (
+            f"{campaign}: {problems[0].where}: {problems[0].what}"
+            + (f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else "")
+            + f"; see `autoresearch check --campaign {campaign}` for the repairs"
+        )
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
+    refusal = _refusal(args)
+    if refusal:
+        print(f"autoresearch report: error: {refusal}", file=sys.stderr)
+        return 2
     try:
-        print(write_report(Path(args.campaign), arms=args.arm, out_dir=args.out))
+        print(write_report(args.campaign, arms=args.arm, out_dir=args.out))
     except (AuditError, FamilyError, JournalError, OSError) as err:
         print(f"autoresearch report: error: {err}", file=sys.stderr)
         return 2

@@ -7,6 +7,7 @@ import argparse
 from autoresearch.audit.commandline import positive_int, run_command
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.verify import verify
+from autoresearch.campaign_lock import CampaignLock
 from autoresearch.executors import add_executor_arguments
 
 
@@ -40,6 +41,7 @@ def print_verify(part: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
-        print_verify(verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds))
+        with CampaignLock(args.campaign, "verify"):
+            print_verify(verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds))
 
     return run_command("verify", args, body)

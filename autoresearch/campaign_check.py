@@ -1,0 +1,243 @@
+"""Validate a campaign directory's files and say how to repair each problem (``autoresearch check``).
+
+What is checked: campaign.json and the campaign's family.json are readable JSON objects and the
+family directory loads; proposals.jsonl holds one whole JSON record per line with iterations
+1, 2, 3, ... exactly once each, every run it records has its run directory; runs.jsonl has whole
+JSON lines, each run logged once and started by a proposal or an intent of this campaign. A torn
+last line (a crash mid-append) is reported too, though the loop repairs it when it next starts.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from autoresearch.campaign import STATUSES, CampaignPaths
+from autoresearch.family import Family, FamilyError
+
+
+@dataclass(frozen=True)
+class Problem:
+    where: str  # file[:line], relative to the campaign directory
+    what: str
+    repair: str
+    breaks_trail: bool = False  # proposals.jsonl no longer reads as iterations 1, 2, ... (resume refuses it)
+
+    def __str__(self) -> str:
+        return f"{self.where}: {self.what}\n    repair: {self.repair}"
+
+
+def _lines(path: Path) -> tuple[list[tuple[int, Any]], list[Problem]]:
+    """(line number, parsed JSON) of every whole line, and the problems of the others."""
+    pieces = path.read_bytes().split(b"\n")
+    parsed, problems = [], []
+    for lineno, line in enumerate(pieces[:-1], start=1):
+        if not line.strip():
+            continue
+        try:
+            parsed.append((lineno, json.loads(line)))
+        except ValueError:
+            problems.append(
+                Problem(
+                    f"{path.name}:{lineno}",
+                    "not a JSON line (readers stop at it)",
+                    f"move line {lineno} out of {path.name} (e.g. into {path.name}.torn)",
+                )
+            )
+    if pieces[-1].strip():
+        problems.append(
+            Problem(
+                f"{path.name}:{len(pieces)}",
+                "torn last line without its newline (a crash mid-append)",
+                f"`autoresearch loop --resume` moves it to {path.name}.torn; or delete that fragment",
+            )
+        )
+    return parsed, problems
+
+
+def _read_object(path: Path, name: str) -> tuple[dict[str, Any] | None, Problem | None]:
+    try:
+        obj = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None, Problem(name, "missing", "this is not a campaign directory, or restore the file")
+    except (OSError, ValueError) as err:
+        return None, Problem(name, f"unreadable ({err})", f"restore {name} from a backup")
+    if not isinstance(obj, dict):
+        return None, Problem(name, "does not hold a JSON object", f"restore {name} from a backup")
+    return obj, None
+
+
+def _check_family(meta: dict[str, Any]) -> list[Problem]:
+    family_dir = meta.get("family")
+    if not isinstance(family_dir, str) or not Path(family_dir).is_dir():
+        return [
+            Problem(
+                "campaign.json",
+                f"its family directory {family_dir!r} does not exist",
+                "restore the family there, or set 'family' in campaign.json to where it now is",
+            )
+        ]
+    try:
+        Family.load(family_dir)
+    except FamilyError as err:
+        return [Problem("campaign.json", f"its family does not load: {err}", "fix the family")]
+    return []
+
+
+def _check_meta(paths: CampaignPaths) -> list[Problem]:
+    """The problems of campaign.json, of its family and of the campaign's family.json."""
+    meta, problem = _read_object(paths.campaign_json, "campaign.json")
+    problems = [problem] if problem else _check_family(meta)
+    if paths.family_json.exists():
+        registry, problem = _read_object(paths.family_json, "family.json")
+        family_name = (meta or {}).get("family_name")
+        if problem:
+            problems.append(
+                Problem("family.json", problem.what, "delete it: the loop rewrites it from the records")
+            )
+        elif family_name and registry.get("name") != family_name:
+            problems.append(
+                Problem(
+                    "family.json",
+                    f"belongs to family {registry.get('name')!r}, not {family_name!r}",
+                    "delete it: the loop rewrites it from the records",
+                )
+            )
+    return problems
+
+
+def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[Problem]]:
+    """The records in order, and the problems of proposals.jsonl."""
+    if not paths.proposals.exists():
+        return [], []
+    lines, problems = _lines(paths.proposals)
+    problems = [replace(p, breaks_trail="torn" not in p.what) for p in problems]
+    records: list[dict[str, Any]] = []
+    first_line: dict[int, int] = {}
+    by_iteration: dict[int, Any] = {}
+    expected = 1
+    for lineno, record in lines:
+        where = f"proposals.jsonl:{lineno}"
+        iteration = record.get("iteration") if isinstance(record, dict) else None
+        if not isinstance(iteration, int) or isinstance(iteration, bool) or iteration < 1:
+            problems.append(
+                Problem(
+                    where, "not a proposals record (no iteration number)", f"move line {lineno} out", True
+                )
+            )
+            continue
+        if iteration in first_line:
+            earlier = first_line[iteration]
+            same = by_iteration[iteration] == record
+            problems.append(
+                Problem(
+                    where,
+                    f"iteration {iteration} again (first at line {earlier})"
+                    + ("" if same else ", with a different record: two processes wrote this campaign"),
+                    f"delete line {lineno}"
+                    if same
+                    else f"keep the lines before {lineno}, move line {lineno} and later ones out, and move "
+                    "the run directories of the iterations they held out of runs/; `autoresearch loop "
+                    "--resume` then runs them again",
+                    breaks_trail=True,
+                )
+            )
+            continue
+        if iteration != expected:
+            problems.append(
+                Problem(
+                    where,
+                    f"iteration {iteration} follows {expected - 1}: "
+                    + (
+                        f"iteration {expected} is missing"
+                        if iteration == expected + 1
+                        else f"iterations {expected}-{iteration - 1} are missing"
+                    ),
+                    f"keep the lines before {lineno}, move line {lineno} and later ones out, and move the "
+                    "run directories of the iterations they held out of runs/; `autoresearch loop "
+                    "--resume` then runs them again",
+                    breaks_trail=True,
+                )
+            )
+        if record.get("status") not in STATUSES:
+            problems.append(
+                Problem(
+                    where,
+                    f"unknown status {record.get('status')!r}",
+                    f"restore line {lineno} from a backup, or treat it as the first bad line (see above)",
+                    breaks_trail=True,
+                )
+            )
+        first_line[iteration], by_iteration[iteration] = lineno, record
+        expected = iteration + 1
+        records.append(record)
+        run_id = record.get("run_id")
+        if record.get("status") in ("ran", "failed") and not (
+            isinstance(run_id, str) and paths.run_dir(run_id).is_dir()
+        ):
+            problems.append(
+                Problem(
+                    where,
+                    f"iteration {iteration} records run {run_id!r}, but runs/{run_id} is missing",
+                    "restore that run directory from a backup (the record stands, but its train.py, log "
+                    "and result are gone)",
+                )
+            )
+    return records, problems
+
+
+def _check_runs_log(paths: CampaignPaths, records: list[dict[str, Any]]) -> list[Problem]:
+    if not paths.runs_log.exists():
+        return []
+    lines, problems = _lines(paths.runs_log)
+    recorded = {r.get("run_id") for r in records}
+    first_line: dict[str, int] = {}
+    for lineno, line in lines:
+        where = f"runs.jsonl:{lineno}"
+        run_id = line.get("run_id") if isinstance(line, dict) else None
+        if not isinstance(run_id, str):
+            problems.append(Problem(where, "a line without a run_id", f"move line {lineno} out"))
+            continue
+        if run_id in first_line:
+            problems.append(
+                Problem(
+                    where,
+                    f"run {run_id} logged again (first at line {first_line[run_id]})",
+                    f"keep the line that matches runs/{run_id}/result.json and delete the other",
+                )
+            )
+            continue
+        first_line[run_id] = lineno
+        if run_id not in recorded and not (paths.run_dir(run_id) / "intent.json").is_file():
+            problems.append(
+                Problem(
+                    where,
+                    f"run {run_id} was started by no proposal or intent of this campaign",
+                    f"delete line {lineno}: it is not a result of this campaign",
+                )
+            )
+    return problems
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    iterations: int
+    problems: list[Problem]
+
+
+def check_campaign(root: str | Path) -> CheckResult:
+    """Every problem of the campaign in ``root`` (which must be a directory)."""
+    paths = CampaignPaths(Path(root))
+    problems = _check_meta(paths)
+    records, proposal_problems = _check_proposals(paths)
+    problems += proposal_problems + _check_runs_log(paths, records)
+    return CheckResult(len(records), problems)
+
+
+def trail_problems(root: str | Path) -> list[Problem]:
+    """The problems of proposals.jsonl that make its records untrustworthy: duplicates, gaps, lines
+    that are not records (a torn last line is not one: readers skip it)."""
+    _, problems = _check_proposals(CampaignPaths(Path(root)))
+    return [p for p in problems if p.breaks_trail]
