@@ -57,11 +57,17 @@ def safe_actions(
             f"states must be (6,) or (N, 6) and u_nominal (3,) or (N, 3) alike, got {states.shape} "
             f"and {u_nominal.shape}"
         )
-    if not (koz_radius > 0 and margin >= 0):
-        raise ValueError(f"need koz_radius > 0 and margin >= 0, got {koz_radius!r}, {margin!r}")
+    if not (np.all(np.isfinite(states)) and np.all(np.isfinite(u_nominal))):
+        raise ValueError("states and u_nominal must be finite, got NaN/inf entries")
+    if not (_number(koz_radius) and koz_radius > 0 and _number(margin) and margin >= 0):
+        raise ValueError(f"need finite koz_radius > 0 and margin >= 0, got {koz_radius!r}, {margin!r}")
     beta, rho = barrier_terms(np.atleast_2d(states), a, b, koz_radius + margin)
     result = project_halfspace_box(np.atleast_2d(u_nominal), beta, rho, u_max)
     return CBFResult(*(field[0] for field in result)) if single else result
+
+
+def _number(value) -> bool:
+    return isinstance(value, int | float | np.number) and not isinstance(value, bool) and np.isfinite(value)
 
 
 def barrier_terms(states: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float):

@@ -150,7 +150,8 @@ def filter_actions(actions: np.ndarray, states: np.ndarray, problem: DockingProb
 
 
 def check_margin(margin: Any) -> float:
-    if not (isinstance(margin, int | float | np.number) and np.isfinite(margin) and margin >= 0):
+    numeric = isinstance(margin, int | float | np.number) and not isinstance(margin, bool | np.bool_)
+    if not (numeric and np.isfinite(margin) and margin >= 0):
         raise ValueError(f"CBF margin must be a non-negative finite number of metres, got {margin!r}")
     return float(margin)
 

@@ -133,8 +133,10 @@ def resolve_problem(kind: type, problem=None, **params):
 
 def _as_vector(name: str, value, size: int) -> np.ndarray:
     array = np.asarray(value, dtype=np.float64)
-    if array.shape != (size,) or not np.all(np.isfinite(array)):
+    if array.shape != (size,):
         raise ValueError(f"{name} must be a finite vector of shape ({size},), got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be a finite vector of shape ({size},), got one with NaN/inf entries")
     return array
 
 

@@ -179,3 +179,23 @@ def test_bad_arguments_raise_clear_errors():
         safe_actions(np.zeros(3), np.ones(6), a, b, koz_radius=-1.0, margin=0.5, u_max=2.0)
     with pytest.raises(ValueError, match="u_max"):
         safe_actions(np.zeros(3), np.ones(6), a, b, koz_radius=5.0, margin=0.5, u_max=0.0)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_states_or_thrust_raise_instead_of_full_thrust(bad):
+    a, b = PROBLEM.matrices()
+    state, thrust = np.array([6.0, 1.0, -2.0, -0.05, 0.02, 0.01]), np.array([0.1, 0.0, 0.0])
+    with pytest.raises(ValueError, match="must be finite, got NaN/inf"):
+        safe_actions(thrust, np.r_[state[:5], bad], a, b, koz_radius=5.0, margin=0.5, u_max=2.0)
+    with pytest.raises(ValueError, match="must be finite, got NaN/inf"):
+        safe_actions(np.r_[bad, 0.0, 0.0], state, a, b, koz_radius=5.0, margin=0.5, u_max=2.0)
+    batch = np.stack([state, np.r_[state[:2], bad, state[3:]]])
+    with pytest.raises(ValueError, match="must be finite"):
+        safe_actions(np.zeros((2, 3)), batch, a, b, koz_radius=5.0, margin=0.5, u_max=2.0)
+
+
+@pytest.mark.parametrize("margin", [True, np.nan, np.inf, "0.5"])
+def test_a_margin_must_be_a_finite_number(margin):
+    a, b = PROBLEM.matrices()
+    with pytest.raises(ValueError, match="margin"):
+        safe_actions(np.zeros(3), np.ones(6), a, b, koz_radius=5.0, margin=margin, u_max=2.0)

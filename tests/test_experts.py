@@ -230,8 +230,12 @@ def test_bad_arguments_raise_clear_value_errors():
         solve_docking(np.r_[-50.0, 0, 0, 0, 0, 0], np.array([3.0, 0.0, 0.0]))
     with pytest.raises(ValueError, match="x0"):
         solve_rendezvous(np.zeros(5))
-    with pytest.raises(ValueError, match="x0"):
+    with pytest.raises(ValueError, match=r"x0 must be a finite vector of shape \(6,\), got one with NaN/inf"):
         solve_docking(np.full(6, np.nan), np.array([8.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match=r"goal .* got one with NaN/inf"):
+        solve_docking(np.zeros(6), np.array([8.0, np.inf, 0.0]))
+    with pytest.raises(ValueError, match=r"x0 must be a finite vector of shape \(6,\), got shape \(5,\)"):
+        solve_rendezvous(np.zeros(5))
     with pytest.raises(ValueError, match="problem"):
         solve_docking(np.zeros(6), np.array([8.0, 0.0, 0.0]), problem=RDZV)
     with pytest.raises(ValueError, match="koz_radius"):

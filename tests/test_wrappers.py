@@ -48,6 +48,9 @@ def test_bad_arguments():
         CBFSafetyFilter(gym.make("CWHDockKOZ-v0"), margin=-0.1)
     with pytest.raises(ValueError, match="margin"):
         CBFSafetyFilter(gym.make("CWHDockKOZ-v0"), margin=float("nan"))
+    for not_a_number in (True, np.float64(np.inf), "0.5"):  # a bool is not a number of metres
+        with pytest.raises(ValueError, match="margin"):
+            CBFSafetyFilter(gym.make("CWHDockKOZ-v0"), margin=not_a_number)
     with pytest.raises(TypeError, match="CWHDockKOZ-v0"):
         CBFSafetyFilter(gym.make("CWHRendezvous-v0"))
 
