@@ -11,9 +11,12 @@ they are identical to a serial run's.
 from __future__ import annotations
 
 import argparse
+import signal
+import threading
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -96,10 +99,11 @@ class RayExecutor(Executor):
         self.workers = workers
         self._started = False
         if not ray.is_initialized():
-            if address:
-                ray.init(address=address, log_to_driver=False)
-            else:
-                ray.init(num_cpus=workers * cpus_per_task, include_dashboard=False, log_to_driver=False)
+            with keeping_signal_handlers():
+                if address:
+                    ray.init(address=address, log_to_driver=False)
+                else:
+                    ray.init(num_cpus=workers * cpus_per_task, include_dashboard=False, log_to_driver=False)
             self._started = True
         if gpus_per_task is None:
             gpus_per_task = 1 if ray.cluster_resources().get("GPU", 0) > 0 else 0
@@ -122,8 +126,23 @@ class RayExecutor(Executor):
 
     def close(self) -> None:
         if self._started:
-            self._ray.shutdown()
+            with keeping_signal_handlers():
+                self._ray.shutdown()
             self._started = False
+
+
+@contextmanager
+def keeping_signal_handlers() -> Iterator[None]:
+    """Restore the SIGINT/SIGTERM handlers after the block: ray.init installs its own SIGTERM handler
+    (exit status 15), which would replace ours (runner.interruptible_runs: stop the runs, exit 130)."""
+    saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        if threading.current_thread() is threading.main_thread():
+            for sig, handler in saved.items():
+                if handler is not None:
+                    signal.signal(sig, handler)
 
 
 def _apply(fn: Callable[[T], R], task: T) -> R:

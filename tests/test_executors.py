@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -109,8 +113,8 @@ def test_a_logged_key_counts_only_for_the_configuration_it_ran(toy, tmp_path):
     assert len(read_jsonl(log)) == 2
 
 
-def test_ray_results_are_identical_to_serial(toy, serial_rows, tmp_path):
-    pytest.importorskip("ray", reason="the optional extra 'ray' is not installed")
+@pytest.mark.slow
+def test_ray_results_are_identical_to_serial(ray_instance, toy, serial_rows, tmp_path):
     from autoresearch.executors import RayExecutor
 
     with RayExecutor(workers=2) as executor:
@@ -118,3 +122,27 @@ def test_ray_results_are_identical_to_serial(toy, serial_rows, tmp_path):
         rows = run_trials(toy, _trials(toy.baseline_config), executor, tmp_path / "log.jsonl", tmp_path, 60)
     assert _metrics(rows) == _metrics(serial_rows)
     assert len(read_jsonl(tmp_path / "log.jsonl")) == 6
+
+
+@pytest.mark.slow
+def test_sigterm_under_ray_exits_130_as_documented(toy, tmp_path):
+    """ray.init installs a SIGTERM handler that exits 15; the executor puts ours back. A process of
+    its own: the executor must start Ray itself for the test to mean anything."""
+    pytest.importorskip("ray", reason="the optional extra 'ray' is not installed")
+    out = tmp_path / "noise"
+    cmd = [sys.executable, "-m", "autoresearch", "noise", "--family", str(toy.path), "--seeds", "2"]
+    proc = subprocess.Popen(
+        [*cmd, "--out", str(out), "--executor", "ray", "--workers", "1"],
+        env={**os.environ, "TOY_SLEEP_S": "120"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    while not list(out.glob("*/process.json")):
+        assert time.monotonic() < deadline and proc.poll() is None, "no run started"
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-2000:]
+    assert "interrupted; run the same command again to resume" in err

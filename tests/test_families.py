@@ -107,6 +107,7 @@ def test_prepare_check_names_what_is_missing_then_passes_once_warm(name, tmp_pat
     assert run(family / "prepare.py", "--check", cache=cache, check=True).returncode == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", FAMILIES)
 def test_train_prints_one_final_metric_appends_one_line_and_is_deterministic(name, warm, tmp_path):
     family, cache = warm[name]
@@ -132,6 +133,7 @@ def test_train_prints_one_final_metric_appends_one_line_and_is_deterministic(nam
         assert {"violation_rate", "min_clearance", "strict_feasible"} <= set(first)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", FAMILIES)
 def test_saved_policy_reloads_and_reproduces_the_metric(name, warm, tmp_path, monkeypatch):
     family, cache = warm[name]
@@ -165,6 +167,7 @@ def test_saved_policy_reloads_and_reproduces_the_metric(name, warm, tmp_path, mo
     assert png.stat().st_size > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", FAMILIES)
 @pytest.mark.parametrize(
     ("learning_rate", "message"), [("float('nan')", "invalid configuration"), ("1e30", "training diverged")]

@@ -166,8 +166,8 @@ def test_a_broken_repeat_is_reported_and_the_others_run(tmp_path, capsys):
     assert "repeat-01 (seed 1): stopped (max_iters), 7 iterations" in out
 
 
-def test_repeats_on_ray_match_the_local_pool(tmp_path):
-    pytest.importorskip("ray", reason="the optional extra 'ray' is not installed")
+@pytest.mark.slow
+def test_repeats_on_ray_match_the_local_pool(ray_instance, tmp_path):
     toy = copy_toy(tmp_path)
     args = ["loop", "--family", str(toy), "--proposer", "random", "--repeats", "2", "--max-iters", "3"]
     assert main([*args, "--campaign", str(tmp_path / "pool"), "--workers", "2"]) == 0
