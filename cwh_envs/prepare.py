@@ -1,11 +1,10 @@
 """What a family's prepare.py runs: build (--warm-cache) or verify (--check) every data set its
 train.py can read.
 
-The sets are the ones train.py loads for any configuration in its search space (the pool size,
-data seed and evaluation size are read from train.py itself, so the two cannot disagree). They
-live in the cwh_envs cache ($CWH_ENVS_CACHE, else ~/.cache/cwh_envs). A family's prepare.py is
-``sys.exit(main(Path(__file__).parent, __doc__))``; its report.py reads train.py with
-:func:`load_train`.
+The family states those sets itself, as a :class:`DataNeeds` built from its own train.py constants
+(so the two cannot disagree), and passes it to :func:`main`: this library never reads a family's
+files. The sets live in the cwh_envs cache ($CWH_ENVS_CACHE, else ~/.cache/cwh_envs). A family's
+report.py loads its own train.py with :func:`load_train`.
 """
 
 from __future__ import annotations
@@ -14,6 +13,7 @@ import argparse
 import importlib.util
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +22,7 @@ from cwh_envs import datasets
 
 
 def load_train(family_dir: str | Path):
-    """The family's train.py as a module (its run is guarded by ``__main__``)."""
+    """A family's own train.py as a module, for its report.py (its run is guarded by ``__main__``)."""
     family_dir = Path(family_dir).resolve()
     spec = importlib.util.spec_from_file_location(f"{family_dir.name}_train", family_dir / "train.py")
     module = importlib.util.module_from_spec(spec)
@@ -30,65 +30,76 @@ def load_train(family_dir: str | Path):
     return module
 
 
-def required_sets(train) -> list[tuple[str, int, object]]:
+@dataclass(frozen=True)
+class DataNeeds:
+    """Every data set a family's train.py can read, for any configuration of its search space."""
+
+    task: str  # "rendezvous" or "docking"
+    problem: object  # the family's RendezvousProblem / DockingProblem
+    pool_demos: int  # the training pool: the N_DEMOS upper bound
+    data_seed: int
+    n_eval: int  # held-out evaluation starts
+    obs_dim: int  # the observation width the demonstrations must have
+    pool_recovery: int | None = None  # the recovery pool (docking's augmentation knob), if any
+
+
+def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
     """(description, trajectories, loader) per set.
 
     A loader takes ``build`` (False: raise datasets.CacheMiss rather than build) and returns
     (starts, goals, demos or None).
     """
-    task, problem = train.TASK, train.PROBLEM
+    task, problem, seed = needs.task, needs.problem, needs.data_seed
 
     def pool(build):
-        demos = datasets.demonstrations(
-            task, train.POOL_DEMOS, seed=train.DATA_SEED, problem=problem, build=build
-        )
+        demos = datasets.demonstrations(task, needs.pool_demos, seed=seed, problem=problem, build=build)
         return demos.starts, demos.goals, demos
 
     def held_out(build):
-        return (*datasets.evaluation_starts(task, train.N_EVAL, problem=problem, build=build), None)
+        return (*datasets.evaluation_starts(task, needs.n_eval, problem=problem, build=build), None)
 
-    call = f"demonstrations(n={train.POOL_DEMOS}, seed={train.DATA_SEED})"
+    call = f"demonstrations(n={needs.pool_demos}, seed={seed})"
     sets = [
-        (f"{task} training pool: {call}", train.POOL_DEMOS, pool),
-        (f"{task} evaluation starts: evaluation_starts(n={train.N_EVAL})", train.N_EVAL, held_out),
+        (f"{task} training pool: {call}", needs.pool_demos, pool),
+        (f"{task} evaluation starts: evaluation_starts(n={needs.n_eval})", needs.n_eval, held_out),
     ]
-    if hasattr(train, "POOL_RECOVERY"):  # families with a recovery-augmentation knob (docking)
+    if needs.pool_recovery is not None:
 
         def recovery(build):
             demos = datasets.recovery_demonstrations(
-                task, train.POOL_RECOVERY, seed=train.DATA_SEED, problem=problem, build=build
+                task, needs.pool_recovery, seed=seed, problem=problem, build=build
             )
             return demos.starts, demos.goals, demos
 
-        call = f"recovery_demonstrations(n={train.POOL_RECOVERY}, seed={train.DATA_SEED})"
-        sets.append((f"{task} recovery pool: {call}", train.POOL_RECOVERY, recovery))
+        call = f"recovery_demonstrations(n={needs.pool_recovery}, seed={seed})"
+        sets.append((f"{task} recovery pool: {call}", needs.pool_recovery, recovery))
     return sets
 
 
-def inconsistency(train, expected: int, starts, goals, demos) -> str | None:
-    """Why a loaded set does not match what train.py expects, or None."""
+def inconsistency(needs: DataNeeds, expected: int, starts, goals, demos) -> str | None:
+    """Why a loaded set does not match what the family expects, or None."""
     if starts.shape != (expected, 6) or goals.shape != (expected, 3):
         return f"holds {len(starts)} starts, expected {expected}"
     if not (np.all(np.isfinite(starts)) and np.all(np.isfinite(goals))):
         return "non-finite starts or goals"
     if demos is None:
         return None
-    if demos.observations.shape[1] != train.OBS_DIM or len(demos.actions) != len(demos.observations):
-        return f"observations have shape {demos.observations.shape}, expected (M, {train.OBS_DIM})"
+    if demos.observations.shape[1] != needs.obs_dim or len(demos.actions) != len(demos.observations):
+        return f"observations have shape {demos.observations.shape}, expected (M, {needs.obs_dim})"
     finite = np.all(np.isfinite(demos.observations)) and np.all(np.isfinite(demos.actions))
-    if not finite or np.abs(demos.actions).max() > train.PROBLEM.u_max * (1 + 1e-6):
+    if not finite or np.abs(demos.actions).max() > needs.problem.u_max * (1 + 1e-6):
         return "non-finite observations or thrust outside the box"
     if set(np.unique(demos.episode)) != set(range(expected)):
         return "episode indices do not cover every trajectory"
     return None
 
 
-def check(train) -> int:
-    failures, sets = [], required_sets(train)
+def check(needs: DataNeeds) -> int:
+    failures, sets = [], required_sets(needs)
     started = time.perf_counter()
     for description, expected, load in sets:
         try:
-            reason = inconsistency(train, expected, *load(build=False))
+            reason = inconsistency(needs, expected, *load(build=False))
         except datasets.CacheMiss:
             reason = "missing"
         if reason:
@@ -105,20 +116,19 @@ def check(train) -> int:
     return 0
 
 
-def warm(train) -> int:
-    for description, _, load in required_sets(train):
+def warm(needs: DataNeeds) -> int:
+    for description, _, load in required_sets(needs):
         started = time.perf_counter()
         load(build=True)
         print(f"ready: {description} ({time.perf_counter() - started:.1f} s)", flush=True)
-    return check(train)
+    return check(needs)
 
 
-def main(family_dir: str | Path, description: str) -> int:
-    """The prepare.py command line for the family in ``family_dir``."""
+def main(needs: DataNeeds, description: str) -> int:
+    """The prepare.py command line for a family that needs ``needs``."""
     parser = argparse.ArgumentParser(description=description.splitlines()[0])
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument("--warm-cache", action="store_true", help="build every set (slow, once)")
     mode.add_argument("--check", action="store_true", help="verify the cache without building (seconds)")
     args = parser.parse_args()
-    train = load_train(family_dir)
-    return warm(train) if args.warm_cache else check(train)
+    return warm(needs) if args.warm_cache else check(needs)

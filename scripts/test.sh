@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The test command: set-up, lint, format check, then the test suite. Extra args go to pytest.
+# The test command: set-up, lint, format check, then the test suite. Extra args go to pytest, e.g.
+#   bash scripts/test.sh -m "not slow"   # the fast tier: no real training runs, no Ray (CI runs all)
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 EXTRAS="${EXTRAS:-dev,ray}" source "$root/scripts/bootstrap.sh"

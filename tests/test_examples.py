@@ -1,8 +1,8 @@
 """The examples end to end at their smallest budgets, as a reader would run them (a subprocess each).
 
 The behaviour-cloned policies come from tmp copies of the family train.py with tiny editable
-values (N_DEMOS, EPOCHS); the data pools and held-out starts are the default cache's, which the
-family tests and any family run warm (the data, not the tiny budget, is what a cold run pays for).
+values (N_DEMOS, EPOCHS); the data pools and held-out starts are built once per test run into the
+run's private cache (tests/conftest.py): about 10 s, what a cold run pays for, not the tiny budget.
 """
 
 from __future__ import annotations

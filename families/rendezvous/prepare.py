@@ -3,13 +3,24 @@
     python prepare.py --warm-cache   # once, slow: expert solves for the whole pool
     python prepare.py --check        # seconds: exit 1 naming whatever is missing or inconsistent
 
-The sets are read from train.py's constants (cwh_envs.prepare holds the logic, shared by families).
+The sets are stated here from train.py's own constants (so the two cannot disagree);
+cwh_envs.prepare builds and verifies them.
 """
 
 import sys
-from pathlib import Path
 
-from cwh_envs.prepare import main
+import train  # this directory's train.py: its constants (its run is guarded by __main__)
+
+from cwh_envs.prepare import DataNeeds, main
+
+NEEDS = DataNeeds(
+    task=train.TASK,
+    problem=train.PROBLEM,
+    pool_demos=train.POOL_DEMOS,
+    data_seed=train.DATA_SEED,
+    n_eval=train.N_EVAL,
+    obs_dim=train.OBS_DIM,
+)
 
 if __name__ == "__main__":
-    sys.exit(main(Path(__file__).parent, __doc__))
+    sys.exit(main(NEEDS, __doc__))
