@@ -25,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 
 from cwh_envs import CBFSafetyFilter  # importing the package registers the ids
+from cwh_envs.controllers import capped_speed_action
 
 SYNC_ENVS = 16
 NATIVE_ENVS = (1024, 8192)
@@ -72,15 +73,6 @@ def bench_vector(env_id: str, num_envs: int, mode: str, seconds: float, **kwargs
     return transitions / (step_time + reset_time), transitions / step_time
 
 
-def capped_speed_policy(obs: np.ndarray, speed: float) -> np.ndarray:
-    """Fly straight at the goal (through the keep-out) at up to ``speed`` m/s."""
-    r, v, g = obs[..., :3], obs[..., 3:6], obs[..., 6:9]
-    error = g - r
-    distance = np.linalg.norm(error, axis=-1, keepdims=True)
-    desired = error / np.maximum(distance, 1e-9) * np.minimum(speed, 0.02 * distance)
-    return np.clip((desired - v) / 0.04, -1.0, 1.0).astype(np.float32)  # 0.04 m/s per step at full thrust
-
-
 def safety_episodes(policy, cbf_margin: float | None, head_on: bool, num_envs: int = 512, seed: int = 0):
     """(fraction of episodes with a step inside R, least clearance [m], infeasible filter steps)."""
     env = gym.make_vec(
@@ -99,7 +91,11 @@ def safety_episodes(policy, cbf_margin: float | None, head_on: bool, num_envs: i
     rng = np.random.default_rng(seed)
     terminated, infeasible = np.zeros(num_envs, dtype=bool), 0
     while not terminated.all():
-        action = rng.uniform(-1, 1, (num_envs, 3)) if policy == "random" else capped_speed_policy(obs, policy)
+        action = (
+            rng.uniform(-1, 1, (num_envs, 3))
+            if policy == "random"
+            else capped_speed_action(obs, policy, env.unwrapped.problem)
+        )
         obs, _, terminated, _, info = env.step(action.astype(np.float32))
         infeasible += int(info.get("cbf_infeasible", np.zeros(1)).sum())
     return float(np.mean(info["violation_rate"] > 0)), float(info["min_clearance"].min()), infeasible

@@ -36,6 +36,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from torch import nn
 
 from cwh_envs import CBFSafetyFilter
+from cwh_envs.controllers import pd_action
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.experts import solve_docking, solve_rendezvous
 
@@ -221,18 +222,15 @@ class OpenLoopExpert:
 
 
 class PDController:
-    """Nothing learned: a saturated, critically damped PD law toward the target (vector_rollout.py's),
-    thrust = m (-omega^2 e - 2 omega v) clipped to the box, omega = 0.01 rad/s (a ~100 s time constant).
-    It flies straight at the docking point; the keep-out is left to the CBF."""
+    """Nothing learned: cwh_envs.controllers.pd_action (vector_rollout.py's law) in newtons, a
+    saturated, critically damped PD law toward the target. It flies straight at the docking point;
+    the keep-out is left to the CBF."""
 
     def __init__(self, problem, omega: float = 0.01):
         self.problem, self.omega = problem, omega
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        obs = obs.astype(np.float64)
-        target = obs[:, 6:9] if obs.shape[1] == 10 else 0.0  # docking observes its goal g
-        accel = -(self.omega**2) * (obs[:, :3] - target) - 2 * self.omega * obs[:, 3:6]
-        return np.clip(self.problem.mass * accel, -self.problem.u_max, self.problem.u_max)
+        return self.problem.u_max * pd_action(obs, self.problem, self.omega)
 
 
 class MetricCurve(BaseCallback):

@@ -18,6 +18,8 @@ import time
 import gymnasium as gym
 import numpy as np
 
+from cwh_envs.controllers import pd_action
+
 ENV_IDS = {"rendezvous": "cwh_envs:CWHRendezvous-v0", "docking": "cwh_envs:CWHDockKOZ-v0"}
 
 
@@ -34,17 +36,6 @@ def parse_args() -> argparse.Namespace:
     return parser.parse_args()
 
 
-def pd_policy(obs: np.ndarray, accel_max: float, omega: float = 0.01) -> np.ndarray:
-    """Critically damped PD toward the target, a = -omega^2 e - 2 omega v, in units of the thrust box.
-
-    omega = 0.01 rad/s: a ~100 s time constant, well inside both horizons (800 s, 2400 s). The law
-    ignores the keep-out (it flies straight at the docking point), which is what --cbf is for.
-    """
-    target = obs[:, 6:9] if obs.shape[1] == 10 else 0.0  # docking observes its goal g
-    error, velocity = obs[:, :3] - target, obs[:, 3:6]
-    return np.clip((-(omega**2) * error - 2 * omega * velocity) / accel_max, -1.0, 1.0)
-
-
 def main() -> None:
     args = parse_args()
     kwargs = {"cbf_margin": 0.5} if args.cbf else {}
@@ -52,7 +43,6 @@ def main() -> None:
         ENV_IDS[args.env], num_envs=args.num_envs, vectorization_mode="vector_entry_point", **kwargs
     )
     problem = envs.unwrapped.problem
-    accel_max = problem.u_max / problem.mass
     envs.action_space.seed(args.seed)
 
     began = time.perf_counter()
@@ -64,7 +54,7 @@ def main() -> None:
     finished = {"terminal_distance": [], "terminal_speed": [], "is_success": [], "violation_rate": []}
     began = time.perf_counter()
     for _ in range(n_steps):
-        actions = envs.action_space.sample() if args.policy == "random" else pd_policy(obs, accel_max)
+        actions = envs.action_space.sample() if args.policy == "random" else pd_action(obs, problem)
         obs, _, terminated, _, info = envs.step(actions)
         if terminated.any():
             for key, values in finished.items():

@@ -11,19 +11,11 @@ from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from cwh_envs.cbf import safe_actions
+from cwh_envs.controllers import capped_speed_action
 from cwh_envs.wrappers import CBFSafetyFilter
 
 CBF_KEYS = {"cbf_active", "cbf_infeasible", "cbf_correction_norm"}
 HEAD_ON = {"initial_state": np.array([14.0, 0.0, 0.0, -0.3, 0.0, 0.0]), "goal": np.array([-8.0, 0.0, 0.0])}
-
-
-def capped_speed_policy(obs: np.ndarray, speed: float) -> np.ndarray:
-    """Fly straight at the goal (through the keep-out) at up to ``speed`` m/s: a naive nominal policy."""
-    r, v, g = obs[..., :3], obs[..., 3:6], obs[..., 6:9]
-    error = g - r
-    distance = np.linalg.norm(error, axis=-1, keepdims=True)
-    desired = error / np.maximum(distance, 1e-9) * np.minimum(speed, 0.02 * distance)
-    return np.clip((desired - v) / 0.04, -1.0, 1.0).astype(np.float32)  # 0.04 m/s per step at full thrust
 
 
 def test_checkers_pass_with_the_filter():
@@ -96,7 +88,7 @@ def test_filter_is_transparent_far_from_the_keep_out():
 def run_batch(policy, cbf_margin: float | None, num_envs: int = 64, head_on: bool = False, seed: int = 0):
     """One episode per row of the native vector env (same filter function as the wrapper).
 
-    ``policy`` is a speed cap for :func:`capped_speed_policy` or ``"random"``. ``head_on`` moves
+    ``policy`` is a speed cap for :func:`~cwh_envs.controllers.capped_speed_action` or ``"random"``. ``head_on`` moves
     each sampled start to the antipode of its goal, so the straight path crosses the centre.
     Returns per-call arrays (H, N) of ``in_koz``, ``clearance`` and ``cbf_infeasible`` and the final info.
     """
@@ -116,7 +108,11 @@ def run_batch(policy, cbf_margin: float | None, num_envs: int = 64, head_on: boo
     trace = {"in_koz": [], "clearance": [], "cbf_infeasible": []}
     terminated = np.zeros(num_envs, dtype=bool)
     while not terminated.all():
-        action = rng.uniform(-1, 1, (num_envs, 3)) if policy == "random" else capped_speed_policy(obs, policy)
+        action = (
+            rng.uniform(-1, 1, (num_envs, 3))
+            if policy == "random"
+            else capped_speed_action(obs, policy, env.unwrapped.problem)
+        )
         obs, _, terminated, _, info = env.step(action.astype(np.float32))
         for key in trace:
             trace[key].append(info.get(key, np.zeros(num_envs, dtype=bool)))
