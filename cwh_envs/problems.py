@@ -84,7 +84,7 @@ class DockingProblem(_Orbit):
         super().__post_init__()
         for name in ("koz_radius", "goal_radius", "success_distance", "success_speed"):
             _positive(name, getattr(self, name))
-        if not (np.isfinite(self.margin) and self.margin >= 0):
+        if not (_real(self.margin) and self.margin >= 0):
             raise ValueError(f"margin must be a non-negative finite number, got {self.margin!r}")
         if self.goal_radius <= self.koz_radius + self.margin:
             raise ValueError(
@@ -108,6 +108,12 @@ class DockingProblem(_Orbit):
             raise ValueError(f"pierce_depth must lie in [0, koz_radius + margin), got {self.pierce_depth!r}")
 
 
+def _real(value) -> bool:
+    """A finite real number; a bool is not one (True would pass as 1)."""
+    numeric = isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
+    return numeric and bool(np.isfinite(value))
+
+
 def _positive(name: str, value: float) -> None:
-    if not (np.isfinite(value) and value > 0):
+    if not (_real(value) and value > 0):
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")

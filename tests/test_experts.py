@@ -240,6 +240,10 @@ def test_bad_arguments_raise_clear_value_errors():
         solve_docking(np.zeros(6), np.array([8.0, 0.0, 0.0]), problem=RDZV)
     with pytest.raises(ValueError, match="koz_radius"):
         DockingProblem(koz_radius=-1.0)
+    with pytest.raises(ValueError, match="koz_radius"):
+        DockingProblem(koz_radius=True)  # a bool is not a number of metres
+    with pytest.raises(ValueError, match="margin"):
+        DockingProblem(margin=True)
     with pytest.raises(ValueError, match="goal_radius"):
         DockingProblem(goal_radius=5.2)
     with pytest.raises(ValueError, match="start_cone_deg"):
