@@ -45,5 +45,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"autoresearch check: error: {root} {what}; expected a campaign directory", file=sys.stderr)
         return 2
     roots = repeats.repeat_dirs(root) if repeats.is_group(root) else [root]
-    clean = [_check_one(r) for r in roots]
+    try:
+        clean = [_check_one(r) for r in roots]
+    except OSError as err:  # a file it may not read
+        print(f"autoresearch check: error: {err}", file=sys.stderr)
+        return 2
     return 0 if all(clean) else 1
