@@ -149,7 +149,11 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
             problems.append(
                 Problem(
                     where,
-                    f"iteration {iteration} follows {expected - 1}: "
+                    (
+                        f"iteration {iteration} follows {expected - 1}: "
+                        if expected > 1
+                        else f"iteration {iteration} comes first: "
+                    )
                     + (
                         f"iteration {expected} is missing"
                         if iteration == expected + 1

@@ -1,8 +1,8 @@
 """Load and validate a family directory (docs/family-contract.md).
 
-autoresearch writes under a family directory only two fields of its family.json, through
-``autoresearch noise`` (seed_noise) and ``autoresearch verify`` / ``prune`` (best); campaigns and
-their runs live outside it (:meth:`Family.check_outside`). Every error names the file and field
+autoresearch writes under a family directory only two fields of its family.json: seed_noise (the
+audit's noise step) and best (its verify and prune steps); campaigns and their runs live outside
+it (:meth:`Family.check_outside`). Every error names the file and field
 that is missing or invalid.
 """
 

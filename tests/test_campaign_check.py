@@ -114,3 +114,16 @@ def test_report_reads_past_a_torn_last_line(campaign, capsys):
         f.write('{"iteration": 6, "sta')
     assert main(["report", "--campaign", str(campaign)]) == 0
     assert (campaign / "report.md").exists()
+
+
+def test_a_group_is_checked_repeat_by_repeat(tmp_path, capsys):
+    toy, group = copy_toy(tmp_path), tmp_path / "g"
+    args = ["--family", str(toy), "--proposer", "random", "--repeats", "2", "--max-iters", "2", "--plain"]
+    assert main(["loop", "--campaign", str(group), *args]) == 0
+    capsys.readouterr()
+    proposals = group / "repeat-01" / "proposals.jsonl"
+    proposals.write_text("".join(lines(proposals)[1:]))  # iteration 1 lost
+    code, out = check(group, capsys)
+    assert code == 1
+    assert f"{group / 'repeat-00'}: clean (3 iterations)" in out
+    assert "proposals.jsonl:1: iteration 2 comes first: iteration 1 is missing" in out
