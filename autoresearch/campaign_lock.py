@@ -22,6 +22,14 @@ class CampaignBusy(CampaignError):
     """Another live process holds the campaign's lock."""
 
 
+def not_a_directory(root: Path) -> str | None:
+    """Why ``root`` cannot be a campaign directory (a file, or nothing there), or None."""
+    if root.is_dir():
+        return None
+    what = "is not a directory" if root.exists() else "does not exist"
+    return f"{root} {what}; expected a campaign directory"
+
+
 def _holder_text(fd: int) -> str:
     os.lseek(fd, 0, os.SEEK_SET)
     text = os.read(fd, 200).decode("utf-8", "replace").strip()
@@ -44,9 +52,9 @@ class CampaignLock:
                 self.root.mkdir(parents=True, exist_ok=True)
             except OSError as err:
                 raise CampaignError(f"{self.root}: cannot create the directory ({err.strerror})") from None
-        if not self.root.is_dir():
-            what = "is not a directory" if self.root.exists() else "does not exist"
-            raise CampaignError(f"{self.root} {what}; expected a campaign directory")
+        problem = not_a_directory(self.root)
+        if problem:
+            raise CampaignError(problem)
         path = self.root / LOCK_FILE
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from autoresearch import repeats
 from autoresearch.campaign_check import check_campaign
-from autoresearch.campaign_lock import holder
+from autoresearch.campaign_lock import holder, not_a_directory
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -40,9 +40,9 @@ def _check_one(root: Path) -> bool:
 
 def run(args: argparse.Namespace) -> int:
     root = args.campaign
-    if not root.is_dir():
-        what = "is not a directory" if root.exists() else "does not exist"
-        print(f"autoresearch check: error: {root} {what}; expected a campaign directory", file=sys.stderr)
+    problem = not_a_directory(root)
+    if problem:
+        print(f"autoresearch check: error: {problem}", file=sys.stderr)
         return 2
     roots = repeats.repeat_dirs(root) if repeats.is_group(root) else [root]
     try:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from autoresearch.audit.inputs import AuditError
 from autoresearch.campaign_check import trail_problems
+from autoresearch.campaign_lock import not_a_directory
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
 from autoresearch.report import write_report
@@ -31,9 +32,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def _refusal(args: argparse.Namespace) -> str | None:
     """Why the report cannot be written from these inputs, or None."""
     campaign = args.campaign
-    if not campaign.is_dir():
-        what = "is not a directory" if campaign.exists() else "does not exist"
-        return f"{campaign} {what}; expected a campaign directory"
+    if not_a_directory(campaign):
+        return not_a_directory(campaign)
     for arm in args.arm:
         if not arm.is_dir():
             return f"--arm {arm}: not a campaign directory"
