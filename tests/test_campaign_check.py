@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 from loop_helpers import copy_toy
 
+from autoresearch.campaign_lock import CampaignLock
 from autoresearch.cli import main
 
 
@@ -120,7 +121,9 @@ def test_a_group_is_checked_repeat_by_repeat(tmp_path, capsys):
     toy, group = copy_toy(tmp_path), tmp_path / "g"
     args = ["--family", str(toy), "--proposer", "random", "--repeats", "2", "--max-iters", "2", "--plain"]
     assert main(["loop", "--campaign", str(group), *args]) == 0
-    capsys.readouterr()
+    with CampaignLock(group, "loop"):  # a group is locked as a whole, besides each repeat
+        assert main(["loop", "--campaign", str(group), *args]) == 2
+    assert "is in use by pid" in capsys.readouterr().err
     proposals = group / "repeat-01" / "proposals.jsonl"
     proposals.write_text("".join(lines(proposals)[1:]))  # iteration 1 lost
     code, out = check(group, capsys)
