@@ -149,8 +149,9 @@ def _typical_run(context: Any) -> dict[str, Any]:
     }
 
 
-def dry_run(meta: dict[str, Any], out: TextIO = sys.stdout) -> int:
+def dry_run(meta: dict[str, Any], out: TextIO | None = None) -> int:
     """Print the first request the proposer would send and the estimated cost of the campaign."""
+    out = out or sys.stdout
     import anthropic
     import openai
 

@@ -62,8 +62,8 @@ def classify(status: int | None, message: str, headers: Mapping[str, str] | None
 
 @dataclass(frozen=True)
 class RetryPolicy:
-    """Backoff ``base_s * 2**k`` capped at ``cap_s`` (a server's retry-after, when longer, is taken
-    up to ``cap_s`` too); the faults of one call are retried for at most ``window_s`` seconds."""
+    """Backoff ``base_s * 2**k``, or the server's retry-after when it sends one, capped at ``cap_s``;
+    the faults of one call are retried for at most ``window_s`` seconds."""
 
     base_s: float = 2.0
     cap_s: float = 60.0
@@ -89,7 +89,8 @@ def call_with_retries(
         try:
             proposal = call()
         except TransientAPIError as err:
-            wait = min(policy.cap_s, max(policy.base_s * 2 ** len(faults), err.retry_after or 0.0))
+            hint = err.retry_after  # the server knows best when it will take the call again
+            wait = min(policy.cap_s, policy.base_s * 2 ** len(faults) if hint is None else hint)
             faults.append(f"{err} (retry in {wait:.3g} s)")
             if clock() - start + wait > budget:
                 limit = (
