@@ -135,7 +135,7 @@ def compact_line(run: dict[str, Any], reference: dict[str, Any] | None, metric: 
 
 def _history_blocks(history: tuple[dict[str, Any], ...], metric: str) -> tuple[str, ...]:
     if not history:
-        return ("No runs yet.\n\n",)
+        return ("No runs yet.\n",)
     first = history[0]
     reference = first.get("config") if isinstance(first.get("config"), dict) else None
     lines = [run_line(first, None)] + [None] * (len(history) - 1)
@@ -149,8 +149,7 @@ def _history_blocks(history: tuple[dict[str, Any], ...], metric: str) -> tuple[s
         blocks.append("".join(row + "\n" for row in rows))
     for i in range(folded, len(history)):
         blocks.append((lines[i] if i == 0 else run_line(history[i], reference)) + "\n")
-    blocks[-1] += "\n"
-    return tuple(blocks)
+    return tuple(blocks)  # a block never changes once written: the blank line after is the tail's
 
 
 def _best(context: ProposerContext, metric: str) -> dict[str, Any] | None:
@@ -195,7 +194,7 @@ def render_prompt(context: ProposerContext) -> Prompt:
         f"{BEST}\n{run_line(best, reference) if best else '(none yet)'}",
         f"{CURRENT}\n```json\n{_json(context.current_values, indent=2)}\n```",
     ]
-    return Prompt("\n\n".join(stable) + "\n", history, "\n\n".join(tail) + "\n")
+    return Prompt("\n\n".join(stable) + "\n", history, "\n" + "\n\n".join(tail) + "\n")
 
 
 def render_context(context: ProposerContext) -> str:

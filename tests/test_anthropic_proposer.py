@@ -74,7 +74,7 @@ def test_request_carries_two_tools_one_forced_call_and_a_cacheable_context():
     assert marked == [0, len(blocks) - 2]
     assert blocks[0]["cache_control"] == {"type": "ephemeral", "ttl": "5m"}
     assert blocks[0]["text"].startswith("## Program") and "Budget" not in blocks[0]["text"]
-    assert blocks[-1]["text"].startswith("## Runs in flight") and "last run timed out" in blocks[-1]["text"]
+    assert blocks[-1]["text"].startswith("\n## Runs in flight") and "last run timed out" in blocks[-1]["text"]
 
 
 def test_ttl_turns_to_one_hour_when_calls_are_far_apart():
