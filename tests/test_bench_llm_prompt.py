@@ -9,7 +9,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_llm_prompt import campaign
+from bench_llm_prompt import campaign  # noqa: E402
 
 
 @pytest.mark.parametrize("kind", ["anthropic", "openai"])
