@@ -29,7 +29,7 @@ from autoresearch.family import Family
 from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
 from autoresearch.live import View
 from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer
-from autoresearch.proposers.retry import call_with_retries
+from autoresearch.proposers.retry import RetryBudgetSpent, call_with_retries
 from autoresearch.runner import (
     RunResult,
     check_record,
@@ -299,6 +299,9 @@ class Orchestrator:
             proposal = call_with_retries(lambda: self.proposer.propose(context), seconds_left=seconds_left)
         except FatalAPIError as err:  # no retry heals a bad key or a spent account
             self._stop(f"api_{err.kind}", str(err))
+            return name, None
+        except RetryBudgetSpent as err:
+            self._stop("wall_clock", str(err))
             return name, None
         except Exception as err:  # a proposer bug or API outage is an invalid iteration, not a crash
             return name, Proposal(kind="invalid", error=f"the proposer raised {type(err).__name__}: {err}")

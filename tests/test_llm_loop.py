@@ -5,7 +5,9 @@ untrusted usage is charged at the maximum, and model text never reaches the term
 from __future__ import annotations
 
 import io
+import time
 
+import httpx2
 from llm_support import FakeServer, anthropic_client, anthropic_error, messages_reply, tool_use
 from loop_helpers import copy_toy
 
@@ -51,6 +53,30 @@ def test_transport_faults_are_retried_recorded_and_not_failures(tmp_path):
     assert outcome.trigger == "max_iters" and records[1]["status"] == "ran"
     faults = records[1]["proposal"]["notes"]["transport_faults"]
     assert len(faults) == 4 and all("529" in f for f in faults)
+
+
+def test_a_long_retry_after_ends_the_campaign_at_its_wall_clock_budget(tmp_path):
+    limited = httpx2.Response(
+        429,
+        json={"type": "error", "error": {"type": "rate_limit_error", "message": "Slow down"}},
+        headers={"retry-after": "3000"},
+    )
+    server = FakeServer(limited)
+    start = time.monotonic()
+    outcome, records, _ = _run(tmp_path, server, max_iters=10, max_seconds=600)
+    assert time.monotonic() - start < 60 and len(server.requests) == 1
+    assert outcome.trigger == "wall_clock" and "429" in outcome.reason
+    assert [r["status"] for r in records] == ["ran", "stopped"]
+
+
+def test_a_runaway_reply_is_refused_and_never_resent(tmp_path):
+    huge = _proposal(12, hypothesis="x" * 1_000_000)
+    server = FakeServer(
+        messages_reply(tool_use(PROPOSE, huge)), messages_reply(tool_use(PROPOSE, _proposal(14)))
+    )
+    _, records, _ = _run(tmp_path, server, max_iters=3)
+    assert records[1]["status"] == "invalid" and "the limit is 2000" in records[1]["reason"]
+    assert len(server.requests[1].content) < 50_000 and records[2]["status"] == "ran"
 
 
 def test_a_bad_key_stops_the_campaign_at_once(tmp_path):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from autoresearch.proposers.base import FatalAPIError, Proposal, TransientAPIError
-from autoresearch.proposers.retry import RetryPolicy, call_with_retries, classify
+from autoresearch.proposers.retry import RetryBudgetSpent, RetryPolicy, call_with_retries, classify
 
 
 class Clock:
@@ -79,9 +79,13 @@ def test_faults_are_retried_with_capped_backoff_and_noted():
 def test_retries_never_sleep_past_the_wall_clock_budget():
     clock = Clock()
     fault = TransientAPIError("429: slow down", retry_after=30.0)
-    proposal = call_with_retries(flaky(fault, fault), seconds_left=10.0, sleep=clock.sleep, clock=clock)
-    assert clock.sleeps == [] and proposal.kind == "invalid"
-    assert "outlasted the wall-clock budget" in proposal.error and proposal.notes["transport_faults"]
+    with pytest.raises(RetryBudgetSpent, match="wall-clock budget"):
+        call_with_retries(flaky(fault, fault), seconds_left=10.0, sleep=clock.sleep, clock=clock)
+    # a retry-after beyond the budget ends it at once, even though the sleep itself would be capped
+    fault = TransientAPIError("429: slow down", retry_after=3000.0)
+    with pytest.raises(RetryBudgetSpent):
+        call_with_retries(flaky(fault), seconds_left=600.0, sleep=clock.sleep, clock=clock)
+    assert clock.sleeps == []
 
 
 def test_a_lasting_outage_ends_at_the_retry_window():

@@ -60,6 +60,10 @@ def classify(status: int | None, message: str, headers: Mapping[str, str] | None
     return None
 
 
+class RetryBudgetSpent(Exception):
+    """The next retry would pass the campaign's wall-clock budget: the campaign ends on it."""
+
+
 @dataclass(frozen=True)
 class RetryPolicy:
     """Backoff ``base_s * 2**k``, or the server's retry-after when it sends one, capped at ``cap_s``;
@@ -80,11 +84,11 @@ def call_with_retries(
 ) -> Proposal:
     """``call()`` retried on :class:`TransientAPIError`; the faults go into the proposal's notes.
 
-    Gives up, as an invalid proposal, when the next wait would pass ``seconds_left`` (the campaign's
-    remaining wall-clock budget) or the policy's window. :class:`FatalAPIError` propagates.
+    Raises :class:`RetryBudgetSpent` when the next wait (or the server's retry-after) would pass
+    ``seconds_left``, the campaign's remaining wall-clock budget; gives up as an invalid proposal
+    after the policy's window. :class:`FatalAPIError` propagates.
     """
     start, faults = clock(), []
-    budget = policy.window_s if seconds_left is None else min(policy.window_s, max(0.0, seconds_left))
     while True:
         try:
             proposal = call()
@@ -92,15 +96,17 @@ def call_with_retries(
             hint = err.retry_after  # the server knows best when it will take the call again
             wait = min(policy.cap_s, policy.base_s * 2 ** len(faults) if hint is None else hint)
             faults.append(f"{err} (retry in {wait:.3g} s)")
-            if clock() - start + wait > budget:
-                limit = (
-                    "wall-clock budget"
-                    if seconds_left is not None and seconds_left < policy.window_s
-                    else "retry window"
-                )
+            spent = clock() - start
+            if seconds_left is not None and spent + max(wait, hint or 0.0) > seconds_left:
+                raise RetryBudgetSpent(
+                    f"the LLM API kept failing ({len(faults)} tries, last: {err}) and the next retry "
+                    f"would pass the wall-clock budget"
+                ) from err
+            if spent + wait > policy.window_s:
                 return Proposal(
                     kind="invalid",
-                    error=f"transport faults outlasted the {limit} ({len(faults)} tries): {err}",
+                    error=f"transport faults outlasted the {policy.window_s:g} s retry window "
+                    f"({len(faults)} tries): {err}",
                     notes={"transport_faults": faults},
                 )
             sleep(wait)
