@@ -28,7 +28,7 @@ from autoresearch.context import build_context, summarize_random_arm
 from autoresearch.family import Family
 from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
 from autoresearch.live import View
-from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer
+from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer, projected_cost
 from autoresearch.proposers.retry import RetryBudgetSpent, call_with_retries
 from autoresearch.runner import (
     RunResult,
@@ -285,12 +285,8 @@ class Orchestrator:
         )
         name = self.settings.proposer_name
         budgets = self.settings.budgets
-        inner = self.proposer  # an enqueued wrapper's LLM is what may cost money
-        while not hasattr(inner, "projected_cost") and hasattr(inner, "inner"):
-            inner = inner.inner
-        if hasattr(inner, "projected_cost") and (
-            trigger := spend_trigger(state, budgets, inner.projected_cost(context))
-        ):
+        trigger = spend_trigger(state, budgets, projected_cost(self.proposer, context))
+        if trigger is not None:
             self._stop(trigger.name, trigger.message)
             return name, None
         seconds_left = None if budgets.max_seconds is None else budgets.max_seconds - self.elapsed()
@@ -332,7 +328,7 @@ class Orchestrator:
                     "reasoning_tokens": usage.reasoning_tokens,
                     "problem": usage.problem,
                 },
-                "notes": _jsonable(getattr(proposal, "notes", {})),
+                "notes": _jsonable(proposal.notes),
             },
             "cost_usd": proposal.usage.cost_usd,
             "input_tokens": proposal.usage.input_tokens,

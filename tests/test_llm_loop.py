@@ -16,6 +16,9 @@ from autoresearch.journal import read_jsonl
 from autoresearch.live import PlainView
 from autoresearch.orchestrator import LoopSettings, Orchestrator
 from autoresearch.proposers.anthropic_api import AnthropicProposer
+from autoresearch.proposers.base import ProposerContext, projected_cost
+from autoresearch.proposers.enqueued import EnqueuedProposer
+from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tools import PROPOSE
 from autoresearch.stopping import Budgets
 
@@ -114,3 +117,17 @@ def test_escape_sequences_from_the_model_never_reach_the_terminal(tmp_path):
     assert "\x1b" not in printed and "\x07" not in printed and "\\x1b]0;owned" in printed
     assert records[1]["status"] == "invalid" and records[2]["status"] == "ran"
     assert records[2]["proposal"]["annotation"]["hypothesis"] == "epochs \\x1b]0;owned\\x07\\x1b[2J"
+
+
+def test_the_projection_sees_through_an_enqueued_wrapper(tmp_path):
+    family = Family.load(copy_toy(tmp_path))
+    llm = AnthropicProposer(family.registry, client=anthropic_client(FakeServer()))
+    wrapped = EnqueuedProposer([{"EPOCHS": 12}], llm, family.space)
+    context = ProposerContext(1, (), family.program, family.registry, None, (), family.baseline_config)
+    assert (
+        projected_cost(wrapped, context) == llm.projected_cost(context) > 0.08
+    )  # 8192 output tokens at $10/M
+    assert (
+        projected_cost(EnqueuedProposer([], RandomProposer(family.registry, seed=0), family.space), context)
+        == 0
+    )

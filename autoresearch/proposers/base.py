@@ -119,3 +119,12 @@ class Proposer(ABC):
 
     def tell(self, overrides: dict[str, Any], metric: float | None, feasible: bool) -> None:  # noqa: B027
         """Outcome of a proposal that ran (metric None when it failed). Stateless proposers ignore it."""
+
+
+def projected_cost(proposer: Proposer, context: ProposerContext) -> float:
+    """An upper bound on the USD the proposer's next call costs: its ``projected_cost(context)``,
+    found through wrappers that delegate to an ``inner`` proposer; 0 for one that costs nothing."""
+    while not hasattr(proposer, "projected_cost") and hasattr(proposer, "inner"):
+        proposer = proposer.inner
+    estimate = getattr(proposer, "projected_cost", None)
+    return float(estimate(context)) if estimate is not None else 0.0
