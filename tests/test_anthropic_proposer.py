@@ -106,7 +106,8 @@ def test_capability_table_decides_forcing_effort_and_the_output_cap():
     assert body["output_config"] == {"effort": "medium"}
 
     # an unknown model: no forcing (it might 400), no effort field (it might not take one)
-    _proposer(server, model="claude-fable-5-2").propose(make_context())
+    with pytest.warns(UserWarning, match="no price for model 'claude-fable-5-2'"):
+        _proposer(server, model="claude-fable-5-2").propose(make_context())
     assert server.body()["tool_choice"]["type"] == "auto" and "output_config" not in server.body()
 
 
