@@ -28,7 +28,8 @@ from autoresearch.context import build_context, summarize_random_arm
 from autoresearch.family import Family
 from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
 from autoresearch.live import View
-from autoresearch.proposers.base import Proposal, Proposer
+from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer, projected_cost
+from autoresearch.proposers.retry import RetryBudgetSpent, call_with_retries
 from autoresearch.runner import (
     RunResult,
     check_record,
@@ -38,7 +39,7 @@ from autoresearch.runner import (
     stop_orphaned_run,
 )
 from autoresearch.space import ValidationError
-from autoresearch.stopping import Budgets, closest_trigger, first_trigger, stop_gate
+from autoresearch.stopping import Budgets, closest_trigger, first_trigger, spend_trigger, stop_gate
 from autoresearch.verdicts import run_verdict
 
 # Every proposals.jsonl record has exactly these keys, in this order.
@@ -267,7 +268,9 @@ class Orchestrator:
         s = self.state
         return Outcome(status, trigger, reason, s.iterations, s.n_runs_ok, s.best)
 
-    def _ask(self) -> tuple[str, Proposal]:
+    def _ask(self) -> tuple[str, Proposal | None]:
+        """(proposer name, proposal); the proposal is None when the campaign was stopped instead
+        (the next call would pass the spend cap, or the API refused the key or the spend)."""
         state = self.state
         if state.n_runs_attempted == 0:
             return BASELINE_PROPOSER, Proposal(kind="propose", annotation={"hypothesis": BASELINE_HYPOTHESIS})
@@ -281,8 +284,21 @@ class Orchestrator:
             random_arm_summary=self.random_summary,
         )
         name = self.settings.proposer_name
+        budgets = self.settings.budgets
+        trigger = spend_trigger(state, budgets, projected_cost(self.proposer, context))
+        if trigger is not None:
+            self._stop(trigger.name, trigger.message)
+            return name, None
+        seconds_left = None if budgets.max_seconds is None else budgets.max_seconds - self.elapsed()
         try:
-            proposal = self.proposer.propose(context)
+            # transport faults are retried here, within the wall-clock budget, and noted, not failed
+            proposal = call_with_retries(lambda: self.proposer.propose(context), seconds_left=seconds_left)
+        except FatalAPIError as err:  # no retry heals a bad key or a spent account
+            self._stop(f"api_{err.kind}", str(err))
+            return name, None
+        except RetryBudgetSpent as err:
+            self._stop("wall_clock", str(err))
+            return name, None
         except Exception as err:  # a proposer bug or API outage is an invalid iteration, not a crash
             return name, Proposal(kind="invalid", error=f"the proposer raised {type(err).__name__}: {err}")
         if not isinstance(proposal, Proposal):
@@ -296,13 +312,23 @@ class Orchestrator:
         iteration = state.iterations + 1
         self.view.iteration_started(iteration)
         proposer, proposal = self._ask()
+        if proposal is None:
+            return
         self.view.proposal(iteration, proposer, proposal)
+        usage = proposal.usage
         base = {
             "proposal": {
                 "kind": _jsonable(proposal.kind),
                 "overrides": _jsonable(proposal.overrides),
                 "annotation": _jsonable(proposal.annotation),
                 "error": _jsonable(proposal.error),
+                "usage": {
+                    "cache_read_tokens": usage.cache_read_tokens,
+                    "cache_write_tokens": usage.cache_write_tokens,
+                    "reasoning_tokens": usage.reasoning_tokens,
+                    "problem": usage.problem,
+                },
+                "notes": _jsonable(proposal.notes),
             },
             "cost_usd": proposal.usage.cost_usd,
             "input_tokens": proposal.usage.input_tokens,

@@ -73,6 +73,19 @@ def first_trigger(state: CampaignState, budgets: Budgets, elapsed_s: float) -> T
     return None
 
 
+def spend_trigger(state: CampaignState, budgets: Budgets, next_call_usd: float) -> Trigger | None:
+    """``max_cost`` before a call: when the spend so far plus the next call's projected cost (an
+    upper bound from the proposer) would pass the cap, the call is not made."""
+    cap = budgets.max_cost_usd
+    if cap is None or state.cost_usd + next_call_usd <= cap:
+        return None
+    return Trigger(
+        "max_cost",
+        f"LLM spend ${state.cost_usd:.4f} plus the next call's projected ${next_call_usd:.4f} would exceed "
+        f"the cap of ${cap:g}",
+    )
+
+
 def closest_trigger(state: CampaignState, budgets: Budgets, elapsed_s: float, blind: bool = False) -> str:
     """A one-line summary of the budget nearest to ending the campaign; ``blind`` leaves out the
     distance to the target (it would reveal the target)."""

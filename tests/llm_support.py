@@ -18,13 +18,15 @@ from autoresearch import prompting
 from autoresearch.context import shown_registry
 from autoresearch.proposers.base import ProposerContext
 
-# The paper's context order (Sec. 3.3), as both proposers must render it.
+# The context order both proposers render: stable parts first, the parts that change every turn last.
 SECTIONS = (
-    prompting.WARNINGS,
     prompting.PROGRAM,
     prompting.REGISTRY,
     prompting.RANDOM_ARM,
     prompting.HISTORY,
+    prompting.RUNNING,
+    prompting.WARNINGS,
+    prompting.BEST,
     prompting.CURRENT,
 )
 
@@ -134,11 +136,11 @@ class FakeServer:
         return httpx2.Client(transport=httpx2.MockTransport(self))
 
 
-def anthropic_client(server: FakeServer, *, max_retries: int = 2) -> anthropic.Anthropic:
+def anthropic_client(server: FakeServer, *, max_retries: int = 0) -> anthropic.Anthropic:
     return anthropic.Anthropic(api_key="test-key", max_retries=max_retries, http_client=server.http_client())
 
 
-def openai_client(server: FakeServer, *, max_retries: int = 2) -> openai.OpenAI:
+def openai_client(server: FakeServer, *, max_retries: int = 0) -> openai.OpenAI:
     return openai.OpenAI(api_key="test-key", max_retries=max_retries, http_client=server.http_client())
 
 
@@ -155,22 +157,26 @@ def messages_reply(
     *blocks: dict[str, Any],
     model: str = "claude-sonnet-5-5",
     stop_reason: str = "tool_use",
-    input_tokens: int = 1000,
-    output_tokens: int = 200,
+    input_tokens: Any = 1000,
+    output_tokens: Any = 200,
+    stop_details: dict[str, Any] | None = None,
+    **usage: Any,
 ) -> httpx2.Response:
-    return httpx2.Response(
-        200,
-        json={
-            "id": "msg_01",
-            "type": "message",
-            "role": "assistant",
-            "model": model,
-            "content": list(blocks),
-            "stop_reason": stop_reason,
-            "stop_sequence": None,
-            "usage": {"input_tokens": input_tokens, "output_tokens": output_tokens},
-        },
-    )
+    """A Messages API reply; ``usage`` adds fields such as cache_read_input_tokens."""
+    body = {
+        "id": "msg_01",
+        "type": "message",
+        "role": "assistant",
+        "model": model,
+        "content": list(blocks),
+        "stop_reason": stop_reason,
+        "stop_sequence": None,
+        "usage": {"input_tokens": input_tokens, "output_tokens": output_tokens, **usage},
+    }
+    if stop_details is not None:
+        body["stop_details"] = stop_details
+    # json.dumps writes NaN as the bare token NaN, as a broken server might
+    return httpx2.Response(200, content=json.dumps(body), headers={"content-type": "application/json"})
 
 
 def tool_use(name: str, tool_input: Any) -> dict[str, Any]:
@@ -183,8 +189,10 @@ def chat_reply(
     content: str | None = None,
     finish_reason: str = "tool_calls",
     model: str = "gpt-5.4",
-    prompt_tokens: int = 1000,
-    completion_tokens: int = 200,
+    prompt_tokens: Any = 1000,
+    completion_tokens: Any = 200,
+    cached_tokens: Any = None,
+    reasoning_tokens: Any = None,
 ) -> httpx2.Response:
     """A Chat Completions reply; ``tool_calls`` are (name, JSON arguments) pairs."""
     message: dict[str, Any] = {"role": "assistant", "content": content}
@@ -193,18 +201,23 @@ def chat_reply(
             {"id": f"call_{i}", "type": "function", "function": {"name": name, "arguments": arguments}}
             for i, (name, arguments) in enumerate(tool_calls)
         ]
-    return httpx2.Response(
-        200,
-        json={
-            "id": "chatcmpl-1",
-            "object": "chat.completion",
-            "created": 1_790_000_000,
-            "model": model,
-            "choices": [{"index": 0, "message": message, "finish_reason": finish_reason, "logprobs": None}],
-            "usage": {
-                "prompt_tokens": prompt_tokens,
-                "completion_tokens": completion_tokens,
-                "total_tokens": prompt_tokens + completion_tokens,
-            },
-        },
-    )
+    usage: dict[str, Any] = {"prompt_tokens": prompt_tokens, "completion_tokens": completion_tokens}
+    if cached_tokens is not None:
+        usage["prompt_tokens_details"] = {"cached_tokens": cached_tokens}
+    if reasoning_tokens is not None:
+        usage["completion_tokens_details"] = {"reasoning_tokens": reasoning_tokens}
+    body = {
+        "id": "chatcmpl-1",
+        "object": "chat.completion",
+        "created": 1_790_000_000,
+        "model": model,
+        "choices": [{"index": 0, "message": message, "finish_reason": finish_reason, "logprobs": None}],
+        "usage": usage,
+    }
+    return httpx2.Response(200, content=json.dumps(body), headers={"content-type": "application/json"})
+
+
+def user_text(body: dict[str, Any]) -> str:
+    """The user message of a request body, its content blocks joined."""
+    content = body["messages"][-1]["content"]
+    return content if isinstance(content, str) else "".join(block["text"] for block in content)

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import math
 
+import httpx2
 import pytest
 from llm_support import (
     BASELINE_METRIC,
@@ -17,9 +19,11 @@ from llm_support import (
     make_context,
     openai_client,
     retry_soon,
+    user_text,
 )
 
 from autoresearch.pricing import Price
+from autoresearch.proposers.base import FatalAPIError, TransientAPIError
 from autoresearch.proposers.openai_api import DEFAULT_MODEL, OpenAIProposer
 from autoresearch.proposers.tools import PROPOSE, STOP
 
@@ -27,8 +31,7 @@ PROPOSE_CALL = (PROPOSE, json.dumps(PROPOSAL_INPUT))
 
 
 def _proposer(server: FakeServer, **kwargs) -> OpenAIProposer:
-    max_retries = kwargs.pop("max_retries", 2)
-    return OpenAIProposer(REGISTRY, client=openai_client(server, max_retries=max_retries), **kwargs)
+    return OpenAIProposer(REGISTRY, client=openai_client(server), **kwargs)
 
 
 def test_default_model_is_a_gpt_the_sdk_knows():
@@ -48,15 +51,15 @@ def test_request_requires_one_call_of_the_two_functions():
     body = server.body()
     assert body["model"] == DEFAULT_MODEL
     assert body["tool_choice"] == "required" and body["parallel_tool_calls"] is False
-    assert "reasoning_effort" not in body
+    assert "reasoning_effort" not in body and body["max_completion_tokens"] == 8192
     assert [t["function"]["name"] for t in body["tools"]] == [PROPOSE, STOP]
     parameters = body["tools"][0]["function"]["parameters"]
     assert parameters["properties"]["axes"]["items"]["enum"] == REGISTRY["axes"]
     assert list(parameters["properties"]["overrides"]["properties"]) == list(REGISTRY["search_space"])
 
-    system, user = body["messages"]
+    system, _ = body["messages"]
     assert system["role"] == "system" and "exactly one tool" in system["content"]
-    positions = [user["content"].index(m) for m in SECTIONS]
+    positions = [user_text(body).index(m) for m in SECTIONS]
     assert positions == sorted(positions)
 
 
@@ -68,9 +71,7 @@ def test_reasoning_effort_is_sent_only_when_given():
 
 def test_base_url_sends_the_request_to_that_server():
     server = FakeServer(chat_reply(tool_calls=[PROPOSE_CALL], model="qwen3-32b"))
-    proposer = _proposer(
-        server, base_url="http://vllm.local:8000/v1", model="qwen3-32b", prices={"qwen3-32b": Price(0, 0)}
-    )
+    proposer = _proposer(server, base_url="http://vllm.local:8000/v1", model="qwen3-32b")
     assert proposer.propose(make_context()).kind == "propose"
     url = server.requests[0].url
     assert (url.host, url.port, url.path) == ("vllm.local", 8000, "/v1/chat/completions")
@@ -108,20 +109,73 @@ def test_cost_comes_from_the_usage_block_and_the_price_table():
     assert usage.cost_usd == pytest.approx((9000 * 1.0 + 300 * 2.0) / 1e6)
 
 
-def test_rate_limit_then_success_is_retried_by_the_sdk():
-    limited = retry_soon(429, {"error": {"message": "Rate limit reached", "type": "requests", "code": None}})
-    server = FakeServer(limited, chat_reply(tool_calls=[PROPOSE_CALL]))
-    assert _proposer(server).propose(make_context()).kind == "propose"
-    assert len(server.requests) == 2
-
-
-def test_exhausted_retries_become_an_invalid_proposal():
+def test_cached_and_reasoning_tokens_are_counted():
     server = FakeServer(
-        retry_soon(503, {"error": {"message": "Service unavailable", "type": "server_error"}})
+        chat_reply(
+            tool_calls=[PROPOSE_CALL],
+            prompt_tokens=9000,
+            completion_tokens=300,
+            cached_tokens=8000,
+            reasoning_tokens=200,
+        )
     )
-    proposal = _proposer(server, max_retries=1).propose(make_context())
-    assert len(server.requests) == 2
-    assert proposal.kind == "invalid" and proposal.error.startswith("api error: ") and "503" in proposal.error
+    usage = _proposer(server).propose(make_context()).usage
+    assert (usage.input_tokens, usage.cache_read_tokens, usage.reasoning_tokens) == (9000, 8000, 200)
+    assert usage.cost_usd == pytest.approx((1000 * 2.5 + 8000 * 0.25 + 300 * 15.0) / 1e6)
+
+
+@pytest.mark.parametrize(
+    "usage",
+    [
+        {"prompt_tokens": -3_000_000},
+        {"completion_tokens": math.nan},
+        {"prompt_tokens": 10, "cached_tokens": 20},
+        {"prompt_tokens": 1.5},
+    ],
+)
+def test_untrusted_usage_is_charged_the_maximum(usage):
+    server = FakeServer(chat_reply(tool_calls=[PROPOSE_CALL], **usage))
+    proposal = _proposer(server, max_tokens=1000).propose(make_context())
+    assert proposal.usage.cost_usd == pytest.approx((400_000 * 2.5 + 1000 * 15.0) / 1e6)
+    assert proposal.usage.problem
+
+
+def test_transport_faults_are_raised_and_key_errors_are_fatal():
+    limited = retry_soon(429, {"error": {"message": "Rate limit reached", "type": "requests", "code": None}})
+    with pytest.raises(TransientAPIError):
+        _proposer(FakeServer(limited)).propose(make_context())
+    unavailable = retry_soon(503, {"error": {"message": "Service unavailable", "type": "server_error"}})
+    server = FakeServer(unavailable)
+    with pytest.raises(TransientAPIError, match="503"):
+        _proposer(server).propose(make_context())
+    assert len(server.requests) == 1
+
+    quota = httpx2.Response(
+        429,
+        json={
+            "error": {
+                "message": "You exceeded your current quota",
+                "type": "insufficient_quota",
+                "code": "insufficient_quota",
+            }
+        },
+    )
+    with pytest.raises(FatalAPIError) as caught:
+        _proposer(FakeServer(quota)).propose(make_context())
+    assert caught.value.kind == "spend_limit"
+    bad_key = httpx2.Response(
+        401, json={"error": {"message": "Incorrect API key", "code": "invalid_api_key"}}
+    )
+    with pytest.raises(FatalAPIError, match="credentials"):
+        _proposer(FakeServer(bad_key)).propose(make_context())
+
+
+def test_length_finish_inside_a_tool_call_is_reported_as_truncated():
+    server = FakeServer(chat_reply(tool_calls=[(PROPOSE, '{"hypothesis": "More')], finish_reason="length"))
+    proposal = _proposer(server, max_tokens=512).propose(make_context())
+    assert proposal.kind == "invalid" and proposal.notes["truncated"] is True
+    assert "cut off at max_tokens=512 inside its tool call" in proposal.error
+    assert server.body()["max_completion_tokens"] == 512
 
 
 def test_reply_without_a_tool_call_is_invalid():

@@ -9,12 +9,16 @@ import pytest
 from llm_support import PROPOSAL_INPUT, REGISTRY, STOP_INPUT
 
 from autoresearch.proposers.tools import (
+    FIELD_LIMITS,
+    LOCAL_UNSUPPORTED,
     PROPOSE,
     STOP,
     STOP_STATUSES,
     anthropic_tools,
     openai_tools,
     parse_tool_call,
+    safe_text,
+    strip_keywords,
     tool_specs,
 )
 
@@ -143,3 +147,68 @@ def test_malformed_stop_is_invalid_with_a_reason(arguments, reason):
 def test_unknown_tool_is_invalid():
     proposal = parse_tool_call("run_shell", {"cmd": "ls"}, REGISTRY)
     assert proposal.kind == "invalid" and "unknown tool 'run_shell'" in proposal.error
+
+
+@pytest.mark.parametrize(
+    ("arguments", "reason"),
+    [
+        (
+            PROPOSAL_INPUT | {"hypothesis": "h" * 2001},
+            "'hypothesis' is 2001 characters long; the limit is 2000",
+        ),
+        (PROPOSAL_INPUT | {"expected_mechanism": "m" * 5000}, "'expected_mechanism' is 5000 characters"),
+        (PROPOSAL_INPUT | {"comparison_to_best": "c" * 2001}, "'comparison_to_best' is 2001"),
+        (
+            PROPOSAL_INPUT
+            | {"failure_prediction": {"metric": 6.0, "direction": "above", "description": "d" * 1001}},
+            "failure_prediction.'description' is 1001",
+        ),
+        (
+            PROPOSAL_INPUT | {"failure_prediction": {"metric": 6.0, "direction": "above", "x": 1}},
+            "unknown keys",
+        ),
+        (PROPOSAL_INPUT | {"overrides": {"ACTIVATION": "r" * 201}}, "a string of 201 characters"),
+        (PROPOSAL_INPUT | {"overrides": {f"P{i}": 1 for i in range(65)}}, "'overrides' has 65 entries"),
+        (PROPOSAL_INPUT | {"axes": ["data"] * 65}, "'axes' has 65 entries"),
+    ],
+)
+def test_a_too_long_field_is_an_invalid_proposal_with_that_reason(arguments, reason):
+    proposal = parse_tool_call(PROPOSE, arguments, REGISTRY)
+    assert proposal.kind == "invalid" and reason in proposal.error
+    assert len(proposal.error) < 400  # the reason quotes no runaway value
+
+
+def test_the_schemas_state_the_limits():
+    schema = tool_specs(REGISTRY)[0]["schema"]["properties"]
+    assert schema["hypothesis"]["maxLength"] == FIELD_LIMITS["hypothesis"]
+    assert (
+        tool_specs(REGISTRY)[1]["schema"]["properties"]["conclusion"]["maxLength"]
+        == FIELD_LIMITS["conclusion"]
+    )
+
+
+def test_control_characters_are_escaped_in_every_string_of_a_proposal():
+    hostile = PROPOSAL_INPUT | {
+        "hypothesis": "a\x1b]0;pwn\x07b",
+        "expected_mechanism": "c\u202ed\x9be",
+        "overrides": {"ACTIVATION": "tanh\x1b[2J"},
+        "failure_prediction": {"metric": 6.0, "direction": "above", "description": "\x00x"},
+    }
+    proposal = parse_tool_call(PROPOSE, hostile, REGISTRY)
+    assert proposal.annotation["hypothesis"] == "a\\x1b]0;pwn\\x07b"
+    assert proposal.annotation["expected_mechanism"] == "c\\u202ed\\x9be"
+    assert proposal.overrides == {"ACTIVATION": "tanh\\x1b[2J"}
+    assert proposal.annotation["failure_prediction"]["description"] == "\\x00x"
+    assert safe_text("line one\n\tline two") == "line one\n\tline two"
+    bad = parse_tool_call("\x1b[31mrun", {}, REGISTRY)
+    assert "\x1b" not in bad.error
+
+
+def test_local_form_drops_the_keywords_local_backends_reject():
+    local = json.dumps(openai_tools(REGISTRY, local=True))
+    assert all(f'"{k}"' not in local for k in LOCAL_UNSUPPORTED)
+    assert '"uniqueItems"' in json.dumps(openai_tools(REGISTRY))
+    registry = copy.deepcopy(REGISTRY)
+    registry["search_space"]["maxLength"] = {"type": "int", "low": 1, "high": 9, "axis": "data"}
+    overrides = strip_keywords(tool_specs(registry)[0]["schema"])["properties"]["overrides"]["properties"]
+    assert "maxLength" in overrides  # a parameter named like a keyword stays

@@ -22,6 +22,7 @@ from autoresearch.orchestrator import LoopSettings, Orchestrator
 from autoresearch.proposers import KEY_FREE, PROPOSERS, make_proposer
 from autoresearch.proposers.base import Proposer
 from autoresearch.proposers.enqueued import EnqueuedProposer, full_queue, read_queue
+from autoresearch.proposers.llm_options import LLM_DEFAULTS, add_llm_arguments, dry_run, llm_kwargs
 from autoresearch.stopping import Budgets
 
 # Settings a campaign keeps in campaign.json; on --resume, flags given again override them.
@@ -40,6 +41,7 @@ DEFAULTS: dict[str, Any] = {
     "timeout_per_run": 3600.0,
     "random_arm": None,
     "enqueue": None,
+    **LLM_DEFAULTS,
 }
 API_KEYS = {"anthropic": "ANTHROPIC_API_KEY", "openai": "OPENAI_API_KEY"}
 
@@ -121,6 +123,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--campaign/repeat-NN/; the execution flags below apply to them",
     )
     add_executor_arguments(p)
+    add_llm_arguments(p)
     return p
 
 
@@ -201,6 +204,7 @@ def build_loop(meta: dict[str, Any]) -> tuple[Family, Proposer, LoopSettings]:
         seed=settings["seed"],
         model=settings["model"],
         base_url=settings["base_url"],
+        **llm_kwargs(meta["proposer"], settings),
     )
     if settings["enqueue"]:
         queue = full_queue(family.space, family.baseline_config, settings["enqueue"])
@@ -234,6 +238,8 @@ def run(args: argparse.Namespace) -> int:
                 "--workers and --executor apply to --repeats; one campaign runs one experiment at a time"
             )
         root, meta = _plan(args)
+        if args.dry_run:
+            return dry_run(meta)
         family, proposer, loop = build_loop(meta)
         family.check_outside(root)
         lock = CampaignLock(root, "loop", create=True).acquire()  # one process per campaign

@@ -18,13 +18,15 @@ def make_proposer(
     model: str | None = None,
     base_url: str | None = None,
     prices: Any = None,
+    **llm_options: Any,
 ) -> Proposer:
     """The proposer called ``name``; ``registry`` is family.json as shown to it.
 
-    ``seed`` seeds the key-free proposers (an LLM's sampling cannot be seeded reliably).
+    ``seed`` seeds the key-free proposers (an LLM's sampling cannot be seeded reliably);
+    ``llm_options`` go to the LLM proposer's constructor (max_tokens, effort, profile, ...).
     """
-    if name in KEY_FREE and (model or base_url):
-        raise ValueError(f"--model and --base-url apply to LLM proposers, not to {name!r}")
+    if name in KEY_FREE and (model or base_url or llm_options):
+        raise ValueError(f"--model, --base-url and the LLM flags apply to LLM proposers, not to {name!r}")
     if name == "random":
         from autoresearch.proposers.random_search import RandomProposer
 
@@ -38,9 +40,9 @@ def make_proposer(
             raise ValueError("--base-url applies to the openai proposer only")
         from autoresearch.proposers.anthropic_api import AnthropicProposer
 
-        return AnthropicProposer(registry, model=model, prices=prices)
+        return AnthropicProposer(registry, model=model, prices=prices, **llm_options)
     if name == "openai":
         from autoresearch.proposers.openai_api import OpenAIProposer
 
-        return OpenAIProposer(registry, model=model, base_url=base_url, prices=prices)
+        return OpenAIProposer(registry, model=model, base_url=base_url, prices=prices, **llm_options)
     raise ValueError(f"unknown proposer {name!r}; choose one of {', '.join(PROPOSERS)}")

@@ -14,17 +14,31 @@ from typing import Any, Literal
 
 @dataclass(frozen=True)
 class Usage:
-    """Tokens and money one proposal cost (zero for key-free proposers)."""
+    """Tokens and money one proposal cost (zero for key-free proposers).
+
+    ``input_tokens`` counts every input token, cached ones included; ``cache_read_tokens`` and
+    ``cache_write_tokens`` say how many of them were read from or written to the provider's prompt
+    cache; ``reasoning_tokens`` how many of ``output_tokens`` were thinking. ``problem`` is set when the
+    server's usage block could not be trusted and the call was charged at a conservative maximum.
+    """
 
     input_tokens: int = 0
     output_tokens: int = 0
     cost_usd: float = 0.0
+    cache_read_tokens: int = 0
+    cache_write_tokens: int = 0
+    reasoning_tokens: int = 0
+    problem: str | None = None
 
     def __add__(self, other: Usage) -> Usage:
         return Usage(
             self.input_tokens + other.input_tokens,
             self.output_tokens + other.output_tokens,
             self.cost_usd + other.cost_usd,
+            self.cache_read_tokens + other.cache_read_tokens,
+            self.cache_write_tokens + other.cache_write_tokens,
+            self.reasoning_tokens + other.reasoning_tokens,
+            self.problem or other.problem,
         )
 
 
@@ -44,6 +58,9 @@ class Proposal:
     annotation: dict[str, Any] = field(default_factory=dict)
     usage: Usage = field(default_factory=Usage)
     error: str | None = None
+    # Facts about the call worth keeping in the record: a refusal's category, a truncation, a
+    # server that seems to have cut the prompt, transport faults retried before this answer.
+    notes: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -72,6 +89,26 @@ class ProposerContext:
     running: tuple[dict[str, Any], ...] = ()
 
 
+class TransientAPIError(Exception):
+    """A transport fault worth retrying (429, 529, 5xx, timeout, dropped connection).
+
+    The orchestrator retries it with capped backoff (:mod:`autoresearch.proposers.retry`); it is not
+    the proposer's failure. ``retry_after`` is the server's hint in seconds, when it gave one.
+    """
+
+    def __init__(self, message: str, retry_after: float | None = None) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after
+
+
+class FatalAPIError(Exception):
+    """An error no retry can heal (authentication, permission, spend limit): the campaign stops."""
+
+    def __init__(self, message: str, kind: str) -> None:
+        super().__init__(message)
+        self.kind = kind  # "auth" or "spend_limit"
+
+
 class Proposer(ABC):
     """Strategy interface. ``tell`` reports the outcome of the last proposal."""
 
@@ -82,3 +119,12 @@ class Proposer(ABC):
 
     def tell(self, overrides: dict[str, Any], metric: float | None, feasible: bool) -> None:  # noqa: B027
         """Outcome of a proposal that ran (metric None when it failed). Stateless proposers ignore it."""
+
+
+def projected_cost(proposer: Proposer, context: ProposerContext) -> float:
+    """An upper bound on the USD the proposer's next call costs: its ``projected_cost(context)``,
+    found through wrappers that delegate to an ``inner`` proposer; 0 for one that costs nothing."""
+    while not hasattr(proposer, "projected_cost") and hasattr(proposer, "inner"):
+        proposer = proposer.inner
+    estimate = getattr(proposer, "projected_cost", None)
+    return float(estimate(context)) if estimate is not None else 0.0
