@@ -36,8 +36,8 @@ class RandomProposer(Proposer):
 
     name = "random"
 
-    def __init__(self, registry: dict[str, Any], seed: int = 0):
-        self.space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
+    def __init__(self, registry: dict[str, Any], seed: int = 0, space: str = "random-range"):
+        self.space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"])).searched(space)
         self.seed = seed
 
     def propose(self, context: ProposerContext) -> Proposal:
