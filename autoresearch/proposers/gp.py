@@ -52,7 +52,9 @@ class GPProposer(TPEProposer):
         study = optuna.create_study(direction=self.study_direction, sampler=sampler)
         study.add_trials(trials)
         study.add_trials(
-            optuna.trial.create_trial(state=TrialState.RUNNING, params=config, distributions=self.distributions)
+            optuna.trial.create_trial(
+                state=TrialState.RUNNING, params=config, distributions=self.distributions
+            )
             for config in self.pending
         )
         return self.space.validate_full(study.ask(self.distributions).params)
