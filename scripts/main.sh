@@ -3,16 +3,16 @@
 # verification, pruning, a random arm on the same space) and its report; at the end, where the
 # report is and its headline. Rendezvous is the default: every run is feasible, the baseline takes
 # seconds, and random-range draws beat its seed noise often enough for verification to have a
-# candidate to reseed and prune (results/README.md, "Main job"). Runs that overrun TIMEOUT fail
-# and cost the crash cost, which keeps the whole job near 10 minutes on a 2-core machine.
-# Override with FAMILY=docking, PROPOSER=gp|random, SPACE=bounds, RUNS, TIMEOUT, SEEDS, COUNT, SEED.
+# candidate to reseed and prune (results/README.md, "Main job"). The campaign draws for BUDGET
+# seconds; a run that overruns TIMEOUT fails at the crash cost, so the candidates are cheap ones
+# and the audit (which reruns them) stays short: about 10 minutes on an idle 2-core machine.
+# Override with FAMILY=docking, PROPOSER=gp|random, SPACE=bounds, BUDGET, TIMEOUT, SEEDS, COUNT, SEED.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$root/scripts/bootstrap.sh"
 cd "$root"
 family="${FAMILY:-rendezvous}"
 proposer="${PROPOSER:-tpe}"
-runs="${RUNS:-8}"
 campaign="${CAMPAIGN:-runs/main-${family}-${proposer}}"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MPLBACKEND=Agg
 start=$SECONDS
@@ -22,8 +22,8 @@ resume=()
 [ -f "$campaign/campaign.json" ] && resume=(--resume)
 echo "[main] campaign: ${proposer} over the ${SPACE:-random-range} space of ${family} -> ${campaign}"
 autoresearch loop --family "$family" --proposer "$proposer" --space "${SPACE:-random-range}" \
-  --max-iters "$runs" --max-failures "$runs" --seed "${SEED:-0}" --max-seconds 360 \
-  --timeout-per-run "${TIMEOUT:-30}" --campaign "$campaign" --plain "${resume[@]}"
+  --max-iters 100 --max-failures 100 --plateau-window 100 --seed "${SEED:-0}" \
+  --max-seconds "${BUDGET:-240}" --timeout-per-run "${TIMEOUT:-20}" --campaign "$campaign" --plain "${resume[@]}"
 echo "[main] audit: seed noise if the family has none, reseeded verification, pruning, random arm"
 autoresearch audit --campaign "$campaign" --noise-seeds "${SEEDS:-3}" --top 1 --seeds "${SEEDS:-3}" \
   --count "${COUNT:-4}" --workers 2
