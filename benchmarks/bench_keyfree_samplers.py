@@ -119,7 +119,9 @@ def main() -> None:
     args = parser.parse_args()
     optuna.logging.set_verbosity(optuna.logging.ERROR)
     checkpoints = [n for n in (10, 20, 30, 60) if n <= args.trials]
-    print(f"| family | arm | {' | '.join(f'best@{n} (median of {args.seeds})' for n in checkpoints)} | s/ask |")
+    print(
+        f"| family | arm | {' | '.join(f'best@{n} (median of {args.seeds})' for n in checkpoints)} | s/ask |"
+    )
     print("|---|---|" + "---|" * (len(checkpoints) + 1))
     for family in args.families.split(","):
         registry = json.loads((ROOT / "families" / family / "family.json").read_text())

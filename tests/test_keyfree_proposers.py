@@ -46,6 +46,8 @@ def test_never_repeats_a_seen_config_when_it_can_avoid_it(cls):
     proposer.tell(ALL_TINY[3], 1.0, True)
     exhausted = proposer.propose(context(ALL_TINY))
     assert exhausted.kind == "invalid" and "no unseen configuration" in exhausted.error
+    # An experiment still running counts as seen: the last unseen one is not proposed twice.
+    assert proposer.propose(context(ALL_TINY[:3], running=ALL_TINY[3:])).kind == "invalid"
 
 
 def test_random_draws_depend_only_on_seed_and_iteration():
