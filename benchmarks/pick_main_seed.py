@@ -76,6 +76,7 @@ def main() -> None:
     baseline = registry["baseline"]["config"]
     for seed in range(args.seeds):
         proposer = make_proposer(args.proposer, registry, seed=seed, space=args.space)
+        proposer.tell(baseline, registry["baseline"]["metric"], True)  # as the loop tells it
         history, priced = [baseline], []
         for iteration in range(2, args.draws + 2):
             context = ProposerContext(
@@ -88,7 +89,7 @@ def main() -> None:
                 current_values=baseline,
             )
             config = proposer.propose(context).overrides
-            proposer.tell(config, None, False)
+            proposer.tell(config, None, False)  # start-up draws do not depend on the outcomes
             history.append(config)
             seconds = 2.0 + math.exp(np.dot(cost, cost_features(config)))
             priced.append(f"({seconds:.0f} s, {math.exp(np.dot(quality, metric_features(config))):.2f} m)")
