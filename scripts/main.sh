@@ -26,7 +26,7 @@ resume=()
 echo "[main] campaign: ${proposer} over the ${SPACE:-random-range} space of ${family} -> ${campaign}"
 autoresearch loop --family "$family" --proposer "$proposer" --space "${SPACE:-random-range}" \
   --max-iters "${RUNS:-4}" --max-failures 100 --plateau-window 100 --seed "${SEED:-16}" \
-  --timeout-per-run "${TIMEOUT:-60}" --campaign "$campaign" --plain "${resume[@]}"
+  --timeout-per-run "${TIMEOUT:-120}" --campaign "$campaign" --plain "${resume[@]}"
 echo "[main] audit: seed noise if the family has none, reseeded verification, pruning, random arm"
 autoresearch audit --campaign "$campaign" --noise-seeds "${SEEDS:-3}" --top 1 --seeds "${SEEDS:-3}" \
   --count "${COUNT:-4}" --workers 2
