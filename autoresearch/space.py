@@ -13,11 +13,14 @@ import json
 import math
 import random
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 PARAM_TYPES = ("int", "real", "log-real", "categorical", "bool")
 NUMERIC_TYPES = ("int", "real", "log-real")
+# What a key-free arm searches: every parameter's declared bounds (the paper's Table 1), or each
+# parameter's ``random_range`` where it declares one (its bounds where it does not).
+SPACES = ("bounds", "random-range")
 
 
 class SpaceError(ValueError):
@@ -127,15 +130,15 @@ class ParamSpec:
         if self.type in NUMERIC_TYPES:
             return f"[{self.low}, {self.high}{')' if self.high_exclusive else ']'}"
         if self.type == "bool":
-            return "true or false"
+            return "true or false" if self.choices is None else " or ".join(map(str, self.choices)).lower()
         return "one of " + ", ".join(repr(c) for c in self.choices or ())
 
     def validate(self, value: Any) -> Any:
         """The canonical form of ``value``, or :class:`ValidationError` saying why it is refused."""
         name = self.name
         if self.type == "bool":
-            if not isinstance(value, bool):
-                raise ValidationError(f"{name}: expected true or false, got {_describe(value)}")
+            if not isinstance(value, bool) or (self.choices is not None and value not in self.choices):
+                raise ValidationError(f"{name}: expected {self.bounds_text()}, got {_describe(value)}")
             return value
         if self.type == "categorical":
             if isinstance(value, str) or _is_number(value):
@@ -165,7 +168,7 @@ class ParamSpec:
         """One draw from this axis's law (paper Eq. randsearch), over ``random_range`` if declared."""
         rr = self.random_range or {}
         if self.type in ("categorical", "bool"):
-            choices = rr.get("choices") or (self.choices if self.type == "categorical" else (False, True))
+            choices = rr.get("choices") or self.choices or (False, True)
             return self.validate(rng.choice(list(choices)))
         low, high = rr.get("low", self.low), rr.get("high", self.high)
         exclusive = self.high_exclusive and high == self.high
@@ -179,6 +182,16 @@ class ParamSpec:
             value = min(max(value, low), high)  # exp/log round-off can step just outside
             if not (exclusive and value >= high):
                 return self.validate(value)
+
+    def narrowed(self) -> ParamSpec:
+        """This parameter with its domain replaced by its ``random_range`` (itself if none)."""
+        rr = self.random_range
+        if rr is None:
+            return self
+        if self.type in NUMERIC_TYPES:  # a valid sub-range's high lies inside the domain: inclusive
+            low, high = self.validate(rr["low"]), self.validate(rr["high"])
+            return replace(self, low=low, high=high, high_exclusive=False, random_range=None)
+        return replace(self, choices=tuple(self.validate(c) for c in rr["choices"]), random_range=None)
 
 
 class SearchSpace:
@@ -227,6 +240,21 @@ class SearchSpace:
         if missing:
             raise ValidationError(f"missing value(s) for {', '.join(missing)}")
         return canonical
+
+    def searched(self, which: str) -> SearchSpace:
+        """The space a key-free arm searches (one of :data:`SPACES`); its draws follow its own domains."""
+        if which == "bounds":
+            return SearchSpace([replace(p, random_range=None) for p in self.params.values()])
+        if which == "random-range":
+            return SearchSpace([p.narrowed() for p in self.params.values()])
+        raise ValueError(f"unknown search space {which!r}; choose one of {', '.join(SPACES)}")
+
+    def contains(self, config: Mapping[str, Any]) -> bool:
+        try:
+            self.validate_full(dict(config))
+        except ValidationError:
+            return False
+        return True
 
     def sample(self, rng: random.Random) -> dict[str, Any]:
         return {name: param.sample(rng) for name, param in self.params.items()}

@@ -1,11 +1,14 @@
 import itertools
 import json
+import math
+import random
 
 import pytest
 from loop_helpers import TOY_FAMILY
 
 from autoresearch.proposers import make_proposer
 from autoresearch.proposers.base import ProposerContext
+from autoresearch.proposers.gp import GPProposer
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tpe import TPEProposer
 
@@ -20,7 +23,7 @@ TINY = {
 ALL_TINY = [{"FLAG": f, "KIND": k} for f, k in itertools.product([False, True], ["x", "y"])]
 
 
-def context(history, iteration=2):
+def context(history, iteration=2, running=()):
     return ProposerContext(
         iteration=iteration,
         warnings=(),
@@ -29,10 +32,11 @@ def context(history, iteration=2):
         random_arm_summary=None,
         history=tuple({"config": c, "m": 0.0} for c in history),
         current_values=ALL_TINY[0],
+        running=tuple({"config": c} for c in running),
     )
 
 
-@pytest.mark.parametrize("cls", [RandomProposer, TPEProposer])
+@pytest.mark.parametrize("cls", [RandomProposer, TPEProposer, GPProposer])
 def test_never_repeats_a_seen_config_when_it_can_avoid_it(cls):
     proposer = cls(TINY, seed=0)
     for config in ALL_TINY[:3]:
@@ -42,6 +46,8 @@ def test_never_repeats_a_seen_config_when_it_can_avoid_it(cls):
     proposer.tell(ALL_TINY[3], 1.0, True)
     exhausted = proposer.propose(context(ALL_TINY))
     assert exhausted.kind == "invalid" and "no unseen configuration" in exhausted.error
+    # An experiment still running counts as seen: the last unseen one is not proposed twice.
+    assert proposer.propose(context(ALL_TINY[:3], running=ALL_TINY[3:])).kind == "invalid"
 
 
 def test_random_draws_depend_only_on_seed_and_iteration():
@@ -86,7 +92,69 @@ def test_make_proposer():
     registry = json.loads((TOY_FAMILY / "family.json").read_text())
     assert isinstance(make_proposer("random", registry, seed=1), RandomProposer)
     assert isinstance(make_proposer("tpe", registry, seed=1), TPEProposer)
+    assert isinstance(make_proposer("gp", registry, seed=1), GPProposer)
+    with pytest.raises(ValueError, match="--space applies to the key-free proposers"):
+        make_proposer("anthropic", registry, seed=1, space="bounds")
     with pytest.raises(ValueError, match="unknown proposer"):
         make_proposer("grid", registry, seed=1)
     with pytest.raises(ValueError, match="apply to LLM proposers"):
         make_proposer("tpe", registry, seed=1, model="x")
+
+
+def toy_outcomes(proposer, n, seed=0):
+    """``n`` random configurations of the family's full space told with a smooth metric; returns them."""
+    rng = random.Random(seed)
+    configs = [proposer.family_space.sample(rng) for _ in range(n)]
+    for i, config in enumerate(configs):
+        metric = None if i == 3 else abs(math.log10(config["LEARNING_RATE"]) + 2) + config["DROPOUT"]
+        proposer.tell(config, metric, True)
+    return configs
+
+
+@pytest.mark.parametrize("name", ["random", "tpe", "gp"])
+@pytest.mark.parametrize("space", ["bounds", "random-range"])
+def test_every_key_free_arm_searches_the_chosen_space(name, space):
+    registry = json.loads((TOY_FAMILY / "family.json").read_text())
+    epochs = []
+    for seed in range(3):
+        proposer = make_proposer(name, registry, seed=seed, space=space)
+        history = toy_outcomes(proposer, 7, seed) if name != "random" else []
+        for iteration in range(2, 8 if name == "random" else 4):
+            proposal = proposer.propose(context(history, iteration=iteration))
+            assert proposal.kind == "propose"
+            epochs.append(proposal.overrides["EPOCHS"])
+    if space == "random-range":
+        assert all(5 <= e <= 50 for e in epochs)  # EPOCHS' random_range; the bounds are [0, 60]
+    else:
+        assert proposer.space.params["EPOCHS"].high == 60
+        if name == "random":
+            assert max(epochs) > 50 or min(epochs) < 5
+
+
+def test_gp_resume_asks_the_same_and_pending_trials_move_it():
+    registry = json.loads((TOY_FAMILY / "family.json").read_text())
+    gp = GPProposer(registry, seed=2, n_startup_trials=4)
+    history = toy_outcomes(gp, 8)
+    assert [t.state.name for t in gp.trials].count("COMPLETE") == 8  # the failure at the crash cost
+    first = gp.propose(context(history, iteration=9))
+    resumed = GPProposer(registry, seed=2, n_startup_trials=4)
+    toy_outcomes(resumed, 8)
+    assert resumed.propose(context(history, iteration=9)).overrides == first.overrides
+    assert first.annotation["hypothesis"].startswith("GP suggestion")
+    # With the first suggestion still running, qLogEI proposes elsewhere.
+    pending = gp.propose(context(history, iteration=10, running=[first.overrides]))
+    assert pending.kind == "propose" and pending.overrides != first.overrides
+    assert (
+        gp.propose(context(history, iteration=10, running=[first.overrides])).overrides == pending.overrides
+    )
+
+
+def test_history_outside_a_narrowed_space_is_kept_out_of_the_model():
+    registry = json.loads((TOY_FAMILY / "family.json").read_text())
+    tpe = TPEProposer(registry, seed=0, space="random-range")
+    base = registry["baseline"]["config"]
+    tpe.tell({**base, "EPOCHS": 60}, 3.0, True)  # outside random_range [5, 50]
+    tpe.tell(base, 1.0, True)
+    assert [t.params["EPOCHS"] for t in tpe.trials] == [10]
+    tpe.tell({**base, "EPOCHS": 7}, None, False)
+    assert [t.value for t in tpe.trials] == [1.0, 3.0]  # the crash cost still counts the outside run

@@ -136,3 +136,38 @@ def test_malformed_spaces_are_refused(spec, why):
         SearchSpace.from_json({"P": spec}, AXES)
     with pytest.raises(SpaceError, match="Python identifier"):
         SearchSpace.from_json({"not a name": {"type": "bool", "axis": "a"}}, AXES)
+
+
+def test_searched_spaces(space):
+    bounds, narrow = space.searched("bounds"), space.searched("random-range")
+    epochs = bounds.params["EPOCHS"]
+    assert (epochs.low, epochs.high, epochs.random_range) == (0, 60, None)  # the declared bounds
+    assert (narrow.params["EPOCHS"].low, narrow.params["EPOCHS"].high) == (5, 50)
+    assert narrow.params["MOMENTUM"] == bounds.params["MOMENTUM"]  # no random_range: its bounds
+    rng = random.Random(0)
+    assert max(bounds.sample(rng)["EPOCHS"] for _ in range(2000)) > 50
+    assert narrow.contains({**space.sample(rng), "EPOCHS": 50})
+    assert not narrow.contains({**space.sample(rng), "EPOCHS": 55}) and space.contains(
+        {**space.sample(rng), "EPOCHS": 55}
+    )
+    with pytest.raises(ValueError, match="unknown search space 'full'"):
+        space.searched("full")
+
+
+def test_narrowed_choices_and_bools():
+    narrow = SearchSpace.from_json(
+        {
+            "K": {
+                "type": "categorical",
+                "choices": ["x", "y", "z"],
+                "axis": "a",
+                "random_range": {"choices": ["y"]},
+            },
+            "F": {"type": "bool", "axis": "b", "random_range": {"choices": [True]}},
+        },
+        AXES,
+    ).searched("random-range")
+    assert narrow.params["K"].choices == ("y",)
+    assert narrow.sample(random.Random(1)) == {"K": "y", "F": True}
+    with pytest.raises(ValidationError, match="F: expected true, got False"):
+        narrow.validate({"F": False})

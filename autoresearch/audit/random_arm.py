@@ -9,6 +9,8 @@ campaign directory (campaign.json, proposals.jsonl, runs.jsonl, runs/) that repo
 comparisons read like any other. Unlike the loop, the arm does not stop at the target: it is a
 best-of-N over all N draws.
 
+The arm searches the space the campaign's key-free proposer searched (its ``--space``), else each
+parameter's ``random_range`` (autoresearch.space.SPACES); ``space`` overrides either.
 --matched-range narrows the training-budget axis to the range the campaign actually used (the
 paper's open limitation: the agent trained longer than the random sweep happened to sample).
 """
@@ -36,6 +38,7 @@ from autoresearch.verdicts import run_verdict
 
 MATCHED_AXIS = "training_budget"
 PROPOSER = "random"
+DEFAULT_SPACE = "random-range"
 
 
 def step_name(matched_range: bool) -> str:
@@ -70,9 +73,26 @@ def matched_ranges(campaign: Campaign) -> dict[str, dict[str, Any]]:
     return ranges
 
 
+def arm_space(campaign: Campaign, space: str | None) -> str:
+    """``space``, else the one the campaign's proposer searched when it chose one, else random-range."""
+    return space or campaign.meta["settings"].get("space") or DEFAULT_SPACE
+
+
+def searched_registry(registry: dict[str, Any], space: str, ranges: dict[str, Any] | None) -> dict[str, Any]:
+    """A copy of ``registry`` whose random_ranges are exactly what the arm samples: none over the
+    bounds, then the matched training-budget ranges on top."""
+    registry = json.loads(json.dumps(registry))
+    for spec in registry["search_space"].values():
+        if space == "bounds":
+            spec.pop("random_range", None)
+    for name, sub_range in (ranges or {}).items():
+        registry["search_space"][name]["random_range"] = sub_range
+    return registry
+
+
 def draw_configs(family: Family, registry: dict[str, Any], seed: int, count: int) -> list[dict[str, Any]]:
     """The baseline, then the random proposer's draws for iterations 2..count."""
-    proposer = RandomProposer(registry, seed)
+    proposer = RandomProposer(registry, seed, space="random-range")
     baseline = family.baseline_config
     configs = [baseline]
     for iteration in range(2, count + 1):
@@ -152,16 +172,16 @@ def run_random_arm(
     matched_range: bool = False,
     seed: int = 0,
     out: Path | None = None,
+    space: str | None = None,
 ) -> dict[str, Any]:
     """Run (or resume) the random arm of ``campaign``; write audit.json[random] and return it."""
     family = campaign.family
     count = count or campaign_count(campaign)
     if count < 1:
         raise AuditError(f"the random arm needs a count >= 1 (got {count})")
-    registry = json.loads(json.dumps(family.registry))
+    space = arm_space(campaign, space)
     ranges = matched_ranges(campaign) if matched_range else None
-    for name, sub_range in (ranges or {}).items():
-        registry["search_space"][name]["random_range"] = sub_range
+    registry = searched_registry(family.registry, space, ranges)
     paths = CampaignPaths((out or default_arm_dir(campaign, matched_range)).resolve())
     meta = {
         "family": str(family.path),
@@ -174,9 +194,12 @@ def run_random_arm(
             "budget_from": str(campaign.root),
             "matched_range": ranges,
         },
+        "space": space,
     }
     if paths.campaign_json.exists():  # resuming: only the very same arm
-        if read_json(paths.campaign_json) != meta:
+        saved = read_json(paths.campaign_json)
+        saved.setdefault("space", DEFAULT_SPACE)  # arms written before the choice existed
+        if saved != meta:
             raise AuditError(
                 f"{paths.root} holds a random arm with other settings; choose another --out or remove it"
             )
@@ -220,7 +243,7 @@ def run_random_arm(
         )
         journal.append(stop)
         state.apply(stop)
-    return summarize(campaign, paths.root, state, matched_range, ranges, seed)
+    return summarize(campaign, paths.root, state, matched_range, ranges, seed, space)
 
 
 def summarize(
@@ -230,6 +253,7 @@ def summarize(
     matched_range: bool,
     ranges: dict[str, Any] | None,
     seed: int,
+    space: str = DEFAULT_SPACE,
 ) -> dict[str, Any]:
     """Eq. verdict in noise units, the strict-feasible fraction, and the arm's bests."""
     family, sign = campaign.family, campaign.family.direction
@@ -242,6 +266,7 @@ def summarize(
         "dir": str(arm_dir),
         "count": sum(r["status"] in ("ran", "failed") for r in state.records),
         "seed": seed,
+        "space": space,
         "matched_range": ranges if matched_range else None,
         "n_ran": len(ran),
         "n_failed": sum(r["status"] == "failed" for r in state.records),

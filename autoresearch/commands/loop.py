@@ -19,10 +19,11 @@ from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json, write_json_atomic
 from autoresearch.live import make_view
 from autoresearch.orchestrator import LoopSettings, Orchestrator
-from autoresearch.proposers import KEY_FREE, PROPOSERS, make_proposer
+from autoresearch.proposers import DEFAULT_SPACE, KEY_FREE, PROPOSERS, make_proposer
 from autoresearch.proposers.base import Proposer
 from autoresearch.proposers.enqueued import EnqueuedProposer, full_queue, read_queue
 from autoresearch.proposers.llm_options import LLM_DEFAULTS, add_llm_arguments, dry_run, llm_kwargs
+from autoresearch.space import SPACES
 from autoresearch.stopping import Budgets
 
 # Settings a campaign keeps in campaign.json; on --resume, flags given again override them.
@@ -41,6 +42,7 @@ DEFAULTS: dict[str, Any] = {
     "timeout_per_run": 3600.0,
     "random_arm": None,
     "enqueue": None,
+    "space": None,  # key-free proposers: None searches DEFAULT_SPACE[proposer]
     **LLM_DEFAULTS,
 }
 API_KEYS = {"anthropic": "ANTHROPIC_API_KEY", "openai": "OPENAI_API_KEY"}
@@ -110,6 +112,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         metavar="FILE",
         help="JSON object or list of {NAME: value} maps (applied to the baseline) to run first, "
         "like Optuna's enqueue_trial; kept in campaign.json",
+    )
+    p.add_argument(
+        "--space",
+        choices=SPACES,
+        help="what a key-free proposer searches: every parameter's bounds, or its random_range where "
+        "declared (default: "
+        + ", ".join(f"{space} for {name}" for name, space in DEFAULT_SPACE.items())
+        + "); kept in campaign.json",
     )
     p.add_argument(
         "--campaign", help="campaign directory (default runs/<family>-<proposer>-<YYYYmmdd-HHMMSS>)"
@@ -204,6 +214,7 @@ def build_loop(meta: dict[str, Any]) -> tuple[Family, Proposer, LoopSettings]:
         seed=settings["seed"],
         model=settings["model"],
         base_url=settings["base_url"],
+        space=settings["space"],
         **llm_kwargs(meta["proposer"], settings),
     )
     if settings["enqueue"]:

@@ -12,6 +12,7 @@ from autoresearch.audit.random_arm import default_arm_dir, run_random_arm
 from autoresearch.campaign_lock import CampaignLock
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
+from autoresearch.space import SPACES
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -31,6 +32,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         action="store_true",
         help="sample the training-budget axis over the campaign's range",
     )
+    p.add_argument(
+        "--space",
+        choices=SPACES,
+        help="sample every parameter's bounds, or its random_range where declared (default: the space "
+        "the campaign's key-free proposer searched, else random-range)",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the random proposer (default 0)")
     p.add_argument("--out", type=Path, help="arm directory (default <campaign>-random[-matched] beside it)")
     add_executor_arguments(p)
@@ -41,7 +48,8 @@ def print_random(part: dict) -> None:
     best = part["best"]
     best_text = f"{best['metric']:.6g} ({best['run_id']})" if best else "none feasible"
     print(
-        f"random arm {part['dir']}: best of {part['count']}: {best_text}; feasible {part['n_feasible']} of {part['n_ran']}"
+        f"random arm {part['dir']} ({part.get('space', 'random-range')} space): best of {part['count']}: "
+        f"{best_text}; feasible {part['n_feasible']} of {part['n_ran']}"
     )
     units = f" ({part['units']:+.2f} sigma)" if part["units"] is not None else ""
     print(f"  verdict: {part['verdict'] or part.get('verdict_note')}{units}")
@@ -68,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
             matched_range=args.matched_range,
             seed=args.seed,
             out=out,
+            space=args.space,
         )
         print_random(part)
 

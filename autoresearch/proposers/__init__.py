@@ -6,8 +6,11 @@ from typing import Any
 
 from autoresearch.proposers.base import Proposer
 
-PROPOSERS = ("anthropic", "openai", "random", "tpe")
-KEY_FREE = ("random", "tpe")
+PROPOSERS = ("anthropic", "gp", "openai", "random", "tpe")
+KEY_FREE = ("gp", "random", "tpe")
+# The space a key-free proposer searches when none is chosen (autoresearch.space.SPACES): what
+# each searched before the choice existed, so that old campaigns resume unchanged.
+DEFAULT_SPACE = {"gp": "bounds", "random": "random-range", "tpe": "bounds"}
 
 
 def make_proposer(
@@ -18,23 +21,35 @@ def make_proposer(
     model: str | None = None,
     base_url: str | None = None,
     prices: Any = None,
+    space: str | None = None,
     **llm_options: Any,
 ) -> Proposer:
     """The proposer called ``name``; ``registry`` is family.json as shown to it.
 
     ``seed`` seeds the key-free proposers (an LLM's sampling cannot be seeded reliably);
+    ``space`` is what a key-free proposer searches (default :data:`DEFAULT_SPACE`);
     ``llm_options`` go to the LLM proposer's constructor (max_tokens, effort, profile, ...).
     """
     if name in KEY_FREE and (model or base_url or llm_options):
         raise ValueError(f"--model, --base-url and the LLM flags apply to LLM proposers, not to {name!r}")
+    if name not in KEY_FREE and space is not None:
+        raise ValueError(
+            f"--space applies to the key-free proposers ({', '.join(KEY_FREE)}), not to {name!r}"
+        )
+    if name in KEY_FREE:
+        space = space or DEFAULT_SPACE[name]
     if name == "random":
         from autoresearch.proposers.random_search import RandomProposer
 
-        return RandomProposer(registry, seed=seed)
+        return RandomProposer(registry, seed=seed, space=space)
     if name == "tpe":
         from autoresearch.proposers.tpe import TPEProposer
 
-        return TPEProposer(registry, seed=seed)
+        return TPEProposer(registry, seed=seed, space=space)
+    if name == "gp":
+        from autoresearch.proposers.gp import GPProposer
+
+        return GPProposer(registry, seed=seed, space=space)
     if name == "anthropic":
         if base_url:
             raise ValueError("--base-url applies to the openai proposer only")

@@ -12,7 +12,8 @@ MAX_DRAWS = 1000
 
 
 def seen_configs(context: ProposerContext) -> set[str]:
-    return {canonical_key(item["config"]) for item in context.history}
+    """Configurations run or running: a key-free proposer proposes neither again."""
+    return {canonical_key(item["config"]) for item in (*context.history, *context.running)}
 
 
 def full_config_proposal(
@@ -36,8 +37,8 @@ class RandomProposer(Proposer):
 
     name = "random"
 
-    def __init__(self, registry: dict[str, Any], seed: int = 0):
-        self.space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
+    def __init__(self, registry: dict[str, Any], seed: int = 0, space: str = "random-range"):
+        self.space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"])).searched(space)
         self.seed = seed
 
     def propose(self, context: ProposerContext) -> Proposal:

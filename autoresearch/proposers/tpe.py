@@ -13,7 +13,7 @@ failed or timed-out run is told as an infeasible trial at the worst metric seen 
 before any run has succeeded there is no worst metric and it is a FAIL trial, which TPE ignores.
 Without the crash cost, a search space with slow corners keeps TPE in its random start-up phase
 (FAIL trials do not count towards it) and spends the budget on timeouts. TPE searches the full
-declared bounds (a parameter's ``random_range`` is for the random arm only).
+declared bounds unless ``space="random-range"`` (autoresearch.space.SPACES).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def _distribution(param: ParamSpec) -> BaseDistribution:
         high = math.nextafter(param.high, param.low) if param.high_exclusive else param.high
         return FloatDistribution(float(param.low), float(high), log=param.type == "log-real")
     if param.type == "bool":
-        return CategoricalDistribution((False, True))
+        return CategoricalDistribution(param.choices or (False, True))
     return CategoricalDistribution(tuple(param.choices or ()))
 
 
@@ -53,9 +53,12 @@ def _derived_seed(*parts: Any) -> int:
 class TPEProposer(Proposer):
     name = "tpe"
 
-    def __init__(self, registry: dict[str, Any], seed: int = 0, n_startup_trials: int = 10):
+    def __init__(
+        self, registry: dict[str, Any], seed: int = 0, n_startup_trials: int = 10, space: str = "bounds"
+    ):
         optuna.logging.set_verbosity(optuna.logging.WARNING)
-        self.space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
+        self.family_space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
+        self.space = self.family_space.searched(space)
         self.study_direction = registry["direction"]
         self.seed = seed
         self.n_startup_trials = n_startup_trials
@@ -64,15 +67,20 @@ class TPEProposer(Proposer):
 
     def tell(self, overrides: dict[str, Any], metric: float | None, feasible: bool) -> None:
         """``overrides`` is the full configuration that ran; ``metric`` is None for a failed run."""
-        self.outcomes.append((self.space.validate_full(overrides), metric, feasible))
+        self.outcomes.append((self.family_space.validate_full(overrides), metric, feasible))
 
     @property
     def trials(self) -> list[FrozenTrial]:
-        """The outcomes as Optuna trials, failures at the current crash cost."""
+        """The outcomes inside the searched space as Optuna trials, failures at the current crash cost.
+
+        An outcome outside it (a baseline or enqueued run beyond a narrowed range) cannot be an
+        Optuna trial of these distributions; it still sets the crash cost."""
         metrics = [metric for _, metric, _ in self.outcomes if metric is not None]
         crash_cost = (max if self.study_direction == "minimize" else min)(metrics) if metrics else None
         trials = []
         for params, metric, feasible in self.outcomes:
+            if not self.space.contains(params):
+                continue
             if metric is None and crash_cost is None:
                 trials.append(
                     optuna.trial.create_trial(
@@ -105,7 +113,7 @@ class TPEProposer(Proposer):
         for attempt in range(MAX_ASKS):
             config = self._ask(trials, attempt)
             if canonical_key(config) not in seen:
-                hypothesis = f"TPE suggestion after {len(trials)} observations"
+                hypothesis = f"{self.name.upper()} suggestion after {len(trials)} observations"
                 return full_config_proposal(self.space, config, context, hypothesis)
         # TPE keeps landing on known points (a small discrete space): fall back to an unseen random draw.
         rng = random.Random(_derived_seed("tpe-fallback", self.seed, len(self.outcomes)))
