@@ -12,7 +12,8 @@ MAX_DRAWS = 1000
 
 
 def seen_configs(context: ProposerContext) -> set[str]:
-    return {canonical_key(item["config"]) for item in context.history}
+    """The configurations run or still running (``loop --workers K``)."""
+    return {canonical_key(item["config"]) for item in (*context.history, *context.running)}
 
 
 def full_config_proposal(

@@ -90,20 +90,31 @@ class TPEProposer(Proposer):
             )
         return trials
 
-    def _ask(self, trials: list[FrozenTrial], attempt: int) -> dict[str, Any]:
+    def _ask(
+        self, trials: list[FrozenTrial], attempt: int, running: list[FrozenTrial] = ()
+    ) -> dict[str, Any]:
         sampler = optuna.samplers.TPESampler(
             seed=_derived_seed("tpe", self.seed, len(trials), attempt),
             n_startup_trials=self.n_startup_trials,
+            constant_liar=True,  # runs in flight are pending trials: TPE is steered away from them
         )
         study = optuna.create_study(direction=self.study_direction, sampler=sampler)
-        study.add_trials(trials)
+        study.add_trials([*trials, *running])
         return self.space.validate_full(study.ask(self.distributions).params)
 
     def propose(self, context: ProposerContext) -> Proposal:
         seen = seen_configs(context)
         trials = self.trials
+        running = [
+            optuna.trial.create_trial(
+                state=TrialState.RUNNING,
+                params=self.space.validate_full(item["config"]),
+                distributions=self.distributions,
+            )
+            for item in context.running
+        ]
         for attempt in range(MAX_ASKS):
-            config = self._ask(trials, attempt)
+            config = self._ask(trials, attempt, running)
             if canonical_key(config) not in seen:
                 hypothesis = f"TPE suggestion after {len(trials)} observations"
                 return full_config_proposal(self.space, config, context, hypothesis)
