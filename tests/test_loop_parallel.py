@@ -84,3 +84,31 @@ def test_random_and_tpe_skip_and_pend_the_running_configurations(toy):
     running = [{"iteration": 14, "run_id": "it0014", "overrides": drawn, "config": drawn, "hypothesis": None}]
     again = ProposerContext(14, (), "", registry, None, (), family.baseline_config, running=tuple(running))
     assert rnd.propose(again).overrides != drawn
+
+
+def test_the_views_show_every_run_in_flight(toy, tmp_path):
+    import io
+
+    from rich.console import Console
+
+    from autoresearch.live import PlainView, RichView
+    from autoresearch.proposers.base import Proposal
+
+    console = Console(file=io.StringIO(), force_terminal=True, width=200)
+    rich, plain = RichView("loss", console=console), PlainView("loss", stream=io.StringIO())
+    for view in (rich, plain):
+        for iteration in (1, 2):
+            view.iteration_started(iteration)
+            view.proposal(
+                iteration, "random", Proposal(kind="propose", annotation={"hypothesis": f"h{iteration}"})
+            )
+            view.run_started(f"it000{iteration}")
+        view.run_progress(3.0, "it0001")
+        view.run_progress(1.0, "it0002")
+    assert sorted(rich.running) == ["it0001", "it0002"]
+    table = rich._table()
+    assert table.row_count == 2
+    rich.close()
+    text = console.file.getvalue()
+    assert "it0001 running 3s" in text and "it0002 running 1s" in text
+    assert "[it 2] started it0002 (also running: it0001)" in plain.stream.getvalue()
