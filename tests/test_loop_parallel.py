@@ -9,6 +9,7 @@ from loop_helpers import ScriptedProposer, copy_toy, run_loop
 from autoresearch.campaign import CampaignState
 from autoresearch.campaign_check import check_campaign
 from autoresearch.family import Family
+from autoresearch.journal import read_jsonl
 from autoresearch.proposers.base import ProposerContext
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tpe import TPEProposer
@@ -112,3 +113,19 @@ def test_the_views_show_every_run_in_flight(toy, tmp_path):
     text = console.file.getvalue()
     assert "it0001 running 3s" in text and "it0002 running 1s" in text
     assert "[it 2] started it0002 (also running: it0001)" in plain.stream.getvalue()
+
+
+@pytest.mark.slow
+def test_workers_on_ray_run_the_same_campaign(ray_instance, tmp_path):
+    from autoresearch.cli import main
+
+    toy = copy_toy(tmp_path)
+    args = ["loop", "--family", str(toy), "--proposer", "random", "--max-iters", "4", "--workers", "2"]
+    assert main([*args, "--campaign", str(tmp_path / "ray"), "--executor", "ray", "--plain"]) == 0
+    records = read_jsonl(tmp_path / "ray" / "proposals.jsonl")
+    assert sorted(r["iteration"] for r in records) == [1, 2, 3, 4, 5]
+    assert sum(r["status"] == "ran" for r in records) == 4
+    assert json.loads((tmp_path / "ray" / "campaign.json").read_text())["settings"]["executor"] == "ray"
+    assert (
+        main([*args, "--campaign", str(tmp_path / "bad"), "--executor", "ray", "--early-stop", "median"]) == 2
+    )
