@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import STATUSES, TERMINAL, CampaignPaths
+from autoresearch.campaign import RUN_STATUSES, STATUSES, TERMINAL, CampaignPaths
 from autoresearch.family import Family, FamilyError
 
 
@@ -158,7 +158,7 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
         first_line[iteration], by_iteration[iteration] = lineno, record
         records.append(record)
         run_id = record.get("run_id")
-        if record.get("status") in ("ran", "failed") and not (
+        if record.get("status") in RUN_STATUSES and not (
             isinstance(run_id, str) and paths.run_dir(run_id).is_dir()
         ):
             problems.append(

@@ -15,6 +15,7 @@ True the run is stopped early (its process group killed) with status ``early_sto
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -255,10 +256,16 @@ def run_in_group(
     return proc.returncode, False
 
 
+@functools.lru_cache(maxsize=8)
+def _editable_defaults(train_source: str) -> dict[str, Any]:
+    """The editable values of a train.py source; parsed once, not once per run (loop overhead)."""
+    return dict(editable.read_region(train_source).values())
+
+
 def write_train_copy(family: Family, config: dict[str, Any], run_dir: Path) -> Path:
     """runs/<run_id>/train.py: the family's train.py with ``config`` patched in (only changed values)."""
     config = family.space.validate_full(config)
-    defaults = family.space.validate_full(editable.read_region(family.train_source).values())
+    defaults = family.space.validate_full(_editable_defaults(family.train_source))
     changes = {k: v for k, v in config.items() if type(v) is not type(defaults[k]) or v != defaults[k]}
     target = run_dir / "train.py"
     if target.exists():
