@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import optuna
-from optuna.trial import TrialState
+if TYPE_CHECKING:
+    import optuna
 
+# optuna is imported only when early stopping is on: it costs the CLI a second of start-up.
 EARLY_STOP = ("none", "median", "asha")
 
 
 def make_pruner(name: str) -> optuna.pruners.BasePruner:
+    import optuna
+
     if name == "median":
         return optuna.pruners.MedianPruner()
     if name == "asha":
@@ -34,6 +37,8 @@ class EarlyStopper:
     """Thread-safe: runs in flight report from their own supervising threads."""
 
     def __init__(self, name: str, direction: str, records: list[dict[str, Any]] = ()):
+        import optuna
+
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         self.name = name
         self.study = optuna.create_study(direction=direction, pruner=make_pruner(name))
@@ -46,6 +51,9 @@ class EarlyStopper:
         curve = _curve(record)
         if not curve or record["status"] not in ("ran", "pruned"):
             return  # a failed run's curve says nothing about the metric it would have reached
+        import optuna
+        from optuna.trial import TrialState
+
         ran = record["status"] == "ran"
         self.study.add_trial(
             optuna.trial.create_trial(
@@ -71,6 +79,8 @@ class EarlyStopper:
 
     def finish(self, record: dict[str, Any]) -> None:
         """Tell the study how a run ended (a run adopted on resume had no trial: it is added)."""
+        from optuna.trial import TrialState
+
         with self._lock:
             trial = self._trials.pop(record["run_id"], None)
             if trial is None:
