@@ -3,6 +3,11 @@
 The state is a pure function of the records: the live loop applies each record it writes
 through :meth:`CampaignState.apply`, and ``--resume`` rebuilds the identical state by applying
 the records read back from disk. Nothing else is kept in memory that the trail cannot restore.
+
+Records are in the order they were written, which with ``loop --workers K`` is the order runs
+finished, not iteration order: an iteration number is given when the proposal is made, and its
+record is appended when its run ends. Each iteration is recorded at most once; a number missing
+from the file belongs to a run in flight (its ``runs/<run_id>/intent.json``).
 """
 
 from __future__ import annotations
@@ -15,7 +20,8 @@ from autoresearch.family import Family
 from autoresearch.space import canonical_key
 from autoresearch.verdicts import is_better, reaches_target
 
-STATUSES = ("ran", "failed", "invalid", "stop_accepted", "stop_rejected", "stopped")
+STATUSES = ("ran", "failed", "pruned", "invalid", "stop_accepted", "stop_rejected", "stopped")
+RUN_STATUSES = ("ran", "failed", "pruned")  # the statuses of an iteration whose experiment started
 TERMINAL = ("stop_accepted", "stopped")
 BASELINE_PROPOSER = "baseline"
 
@@ -72,6 +78,7 @@ class CampaignState:
         self.seen_overrides: dict[str, int] = {}
         self.axes_exercised: set[str] = set()
         self.run_ids: set[str] = set()
+        self.recorded: set[int] = set()  # iteration numbers with a record
         self.history_full: list[dict[str, Any]] = []
         self.history_blind: list[dict[str, Any]] = []
 
@@ -85,6 +92,11 @@ class CampaignState:
     @property
     def iterations(self) -> int:
         return len(self.records)
+
+    @property
+    def next_iteration(self) -> int:
+        """The number after every recorded one (runs in flight may hold some numbers past it)."""
+        return max(self.recorded, default=0) + 1
 
     @property
     def last(self) -> dict[str, Any] | None:
@@ -131,19 +143,22 @@ class CampaignState:
             return (f"Iteration {i}: your stop request was rejected: {reason}",)
         if last["status"] == "failed":
             return (f"Iteration {i}: run {last['run_id']} failed: {reason}",)
+        if last["status"] == "pruned":
+            return (f"Iteration {i}: run {last['run_id']} was stopped early: {reason}",)
         return ()
 
     def apply(self, record: dict[str, Any]) -> None:
-        expected = self.iterations + 1
-        if record.get("iteration") != expected:
-            raise CampaignError(
-                f"proposals.jsonl: expected iteration {expected}, found {record.get('iteration')!r}"
-            )
+        iteration = record.get("iteration")
+        if not isinstance(iteration, int) or isinstance(iteration, bool) or iteration < 1:
+            raise CampaignError(f"proposals.jsonl: record {len(self.records) + 1} has no iteration number")
+        if iteration in self.recorded:
+            raise CampaignError(f"proposals.jsonl: iteration {iteration} is recorded twice")
         if record.get("status") not in STATUSES:
             raise CampaignError(
-                f"proposals.jsonl: iteration {expected} has unknown status {record.get('status')!r}"
+                f"proposals.jsonl: iteration {iteration} has unknown status {record.get('status')!r}"
             )
         self.records.append(record)
+        self.recorded.add(iteration)
         self.cost_usd += record.get("cost_usd") or 0.0
         self.input_tokens += record.get("input_tokens") or 0
         self.output_tokens += record.get("output_tokens") or 0
@@ -151,7 +166,7 @@ class CampaignState:
         status = record["status"]
         if status in ("failed", "invalid", "stop_rejected"):
             self.consecutive_failures += 1
-        if status in ("ran", "failed"):
+        if status in RUN_STATUSES:
             self._apply_run(record)
 
     def _apply_run(self, record: dict[str, Any]) -> None:
@@ -171,7 +186,9 @@ class CampaignState:
             "config": config,
             metric_name: record.get("metric"),
         }
-        if record["status"] == "failed":
+        if record.get("progress"):
+            item["progress"] = record["progress"]
+        if record["status"] != "ran":  # failed, or pruned: neither counts as a result nor as a failure
             item["reason"] = record.get("reason")
         else:
             metric, feasible = record["metric"], bool(record["feasible"])

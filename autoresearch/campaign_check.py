@@ -2,7 +2,9 @@
 
 What is checked: campaign.json and the campaign's family.json are readable JSON objects and the
 family directory loads; proposals.jsonl holds one whole JSON record per line with iterations
-1, 2, 3, ... exactly once each, every run it records has its run directory; runs.jsonl has whole
+1, 2, 3, ... exactly once each (in any order: with ``loop --workers K`` records follow the order
+runs finish; a number held by a run still in flight, i.e. an intent without a record, may be
+missing), every run it records has its run directory; runs.jsonl has whole
 JSON lines, each run logged once and started by a proposal or an intent of this campaign. A torn
 last line (a crash mid-append) is reported too, though the loop repairs it when it next starts.
 """
@@ -14,7 +16,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import STATUSES, CampaignPaths
+from autoresearch.campaign import RUN_STATUSES, STATUSES, TERMINAL, CampaignPaths
 from autoresearch.family import Family, FamilyError
 
 
@@ -117,7 +119,6 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
     records: list[dict[str, Any]] = []
     first_line: dict[int, int] = {}
     by_iteration: dict[int, Any] = {}
-    expected = 1
     for lineno, record in lines:
         where = f"proposals.jsonl:{lineno}"
         iteration = record.get("iteration") if isinstance(record, dict) else None
@@ -145,26 +146,6 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
                 )
             )
             continue
-        if iteration != expected:
-            problems.append(
-                Problem(
-                    where,
-                    (
-                        f"iteration {iteration} follows {expected - 1}: "
-                        if expected > 1
-                        else f"iteration {iteration} comes first: "
-                    )
-                    + (
-                        f"iteration {expected} is missing"
-                        if iteration == expected + 1
-                        else f"iterations {expected}-{iteration - 1} are missing"
-                    ),
-                    f"keep the lines before {lineno}, move line {lineno} and later ones out, and move the "
-                    "run directories of the iterations they held out of runs/; `autoresearch loop "
-                    "--resume` then runs them again",
-                    breaks_trail=True,
-                )
-            )
         if record.get("status") not in STATUSES:
             problems.append(
                 Problem(
@@ -175,10 +156,9 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
                 )
             )
         first_line[iteration], by_iteration[iteration] = lineno, record
-        expected = iteration + 1
         records.append(record)
         run_id = record.get("run_id")
-        if record.get("status") in ("ran", "failed") and not (
+        if record.get("status") in RUN_STATUSES and not (
             isinstance(run_id, str) and paths.run_dir(run_id).is_dir()
         ):
             problems.append(
@@ -189,7 +169,50 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
                     "and result are gone)",
                 )
             )
-    return records, problems
+    return records, problems + _gaps(paths, first_line, records)
+
+
+def _in_flight(paths: CampaignPaths, recorded_runs: set[Any]) -> set[int]:
+    """Iterations held by a run in flight (or interrupted and not yet resumed): an intent, no record."""
+    held = set()
+    for intent_path in paths.runs_dir.glob("*/intent.json") if paths.runs_dir.is_dir() else ():
+        if (intent_path.parent / "interrupted.json").exists() or intent_path.parent.name in recorded_runs:
+            continue
+        try:
+            held.add(json.loads(intent_path.read_text())["iteration"])
+        except (ValueError, KeyError, TypeError):
+            continue
+    return held
+
+
+def _gaps(paths: CampaignPaths, first_line: dict[int, int], records: list[dict[str, Any]]) -> list[Problem]:
+    """Iteration numbers below the highest recorded one that have no record and no run in flight."""
+    if not first_line:
+        return []
+    # runs in flight are recorded before a stop record: a number below one is lost, not in flight
+    stops = [r["iteration"] for r in records if r.get("status") in TERMINAL]
+    held = {i for i in _in_flight(paths, {r.get("run_id") for r in records}) if i > max(stops, default=0)}
+    missing = [i for i in range(1, max(first_line)) if i not in first_line and i not in held]
+    problems = []
+    while missing:
+        low = high = missing.pop(0)
+        while missing and missing[0] == high + 1:
+            high = missing.pop(0)
+        after = min((i for i in first_line if i > high), default=high + 1)
+        lineno = first_line[after]
+        before = max((i for i, n in first_line.items() if n < lineno), default=None)
+        problems.append(
+            Problem(
+                f"proposals.jsonl:{lineno}",
+                (f"iteration {after} follows {before}: " if before else f"iteration {after} comes first: ")
+                + (f"iteration {low} is missing" if low == high else f"iterations {low}-{high} are missing"),
+                f"keep the lines before {lineno}, move line {lineno} and later ones out, and move the "
+                "run directories of the iterations they held out of runs/; `autoresearch loop "
+                "--resume` then runs them again",
+                breaks_trail=True,
+            )
+        )
+    return problems
 
 
 def _check_runs_log(paths: CampaignPaths, records: list[dict[str, Any]]) -> list[Problem]:

@@ -1,13 +1,15 @@
-"""What the loop shows while it runs: a rich live table on a terminal, one line per iteration otherwise.
+"""What the loop shows while it runs: a rich live table on a terminal, one line per event otherwise.
 
 The orchestrator calls a :class:`View`; the base class shows nothing (used in tests and by
-callers that want silence).
+callers that want silence). ``run_progress`` comes from the thread supervising that run (with
+``loop --workers K`` several at once); every other event comes from the loop's main thread.
 """
 
 from __future__ import annotations
 
 import json
 import sys
+import threading
 from typing import Any, ClassVar, TextIO
 
 from autoresearch.proposers.base import Proposal
@@ -37,7 +39,7 @@ def _outcome(record: dict[str, Any]) -> str:
     if status == "ran":
         wall = record["wall_seconds"]
         return record["run_id"] + (f" ({wall:.1f}s)" if wall is not None else "")
-    if status == "failed":
+    if status in ("failed", "pruned"):
         return f"{record['run_id']} {record['run_status']}"
     if status == "stopped":
         return f"stopped: {record['trigger']}"
@@ -56,7 +58,7 @@ class View:
     def run_started(self, run_id: str) -> None:
         pass
 
-    def run_progress(self, elapsed: float) -> None:
+    def run_progress(self, elapsed: float, run_id: str | None = None) -> None:
         pass
 
     def record(self, record: dict[str, Any], closest: str) -> None:
@@ -67,11 +69,26 @@ class View:
 
 
 class PlainView(View):
-    """One line per iteration, for logs and pipes."""
+    """One line per event, for logs and pipes: a run started (with several in flight), a record."""
 
     def __init__(self, metric: str, stream: TextIO | None = None):
         self.metric = metric
         self.stream = stream or sys.stdout
+        self.iteration: int | None = None
+        self.in_flight: set[str] = set()
+
+    def iteration_started(self, iteration: int) -> None:
+        self.iteration = iteration
+
+    def run_started(self, run_id: str) -> None:
+        self.in_flight.add(run_id)
+        if len(self.in_flight) > 1:  # one at a time, the record line says it all
+            others = ", ".join(sorted(self.in_flight - {run_id}))
+            print(
+                f"[it {self.iteration}] started {run_id} (also running: {others})",
+                file=self.stream,
+                flush=True,
+            )
 
     def record(self, record: dict[str, Any], closest: str) -> None:
         head = f"[it {record['iteration']}] {record['proposer']}: {_outcome(record)}"
@@ -80,6 +97,7 @@ class PlainView(View):
         else:
             body = record["reason"] or ""
         tail = f"best={_number(record['best_so_far'])} spend=${record['cumulative_cost_usd']:.4f} | {closest}"
+        self.in_flight.discard(record["run_id"])
         print(f"{head} {body} | {tail}", file=self.stream, flush=True)
 
 
@@ -105,10 +123,12 @@ class RichView(View):
 
         self.metric = metric
         self.rows: list[dict[str, str]] = []
-        self.current: dict[str, str] | None = None
-        self.run_id = ""
-        self.shown_second = -1
+        self.current: dict[str, str] | None = None  # the iteration being proposed
+        self.running: dict[str, dict[str, str]] = {}  # run id -> its row, every run in flight
+        self.shown_second: dict[str, int] = {}
+        self.latest_run = ""
         self.closest = ""
+        self.lock = threading.Lock()  # rows change from the main thread, seconds from run threads
         self.live = Live(self._table(), console=console or Console(), refresh_per_second=4)
         self.live.start()
 
@@ -118,13 +138,15 @@ class RichView(View):
         table = Table(title=f"autoresearch loop ({self.metric})", caption=self.closest or None, expand=True)
         for column, width in self.COLUMNS.items():
             table.add_column(column, no_wrap=True, overflow="ellipsis", **width)  # one line per iteration
-        rows = self.rows[-MAX_ROWS:] + ([self.current] if self.current else [])
+        rows = self.rows[-MAX_ROWS:] + list(self.running.values()) + ([self.current] if self.current else [])
         for row in rows:
             table.add_row(*(row.get(c, "") for c in self.COLUMNS))
         return table
 
     def _refresh(self) -> None:
-        self.live.update(self._table())
+        with self.lock:
+            table = self._table()
+        self.live.update(table)
 
     def iteration_started(self, iteration: int) -> None:
         self.current = {"it": str(iteration), "run": "proposing…"}
@@ -143,18 +165,29 @@ class RichView(View):
         self._refresh()
 
     def run_started(self, run_id: str) -> None:
-        self.run_id = run_id
-        self.shown_second = -1
-        self.run_progress(0.0)
+        with self.lock:
+            self.running[run_id] = dict(self.current or {})
+            self.current = None
+            self.shown_second[run_id] = -1
+            self.latest_run = run_id
+        self.run_progress(0.0, run_id)
 
-    def run_progress(self, elapsed: float) -> None:
-        if self.current is not None and int(elapsed) != self.shown_second:
-            self.shown_second = int(elapsed)
-            self.current["run"] = f"{self.run_id} running {self.shown_second}s"
-            self._refresh()
+    def run_progress(self, elapsed: float, run_id: str | None = None) -> None:
+        run_id = run_id or self.latest_run
+        with self.lock:
+            row = self.running.get(run_id)
+            if row is None or int(elapsed) == self.shown_second.get(run_id):
+                return
+            self.shown_second[run_id] = int(elapsed)
+            row["run"] = f"{run_id} running {int(elapsed)}s"
+        self._refresh()
 
     def record(self, record: dict[str, Any], closest: str) -> None:
-        row = dict(self.current or {"it": str(record["iteration"]), "proposer": record["proposer"]})
+        with self.lock:
+            started = self.running.pop(record["run_id"], None) if record["run_id"] else None
+        row = dict(
+            started or self.current or {"it": str(record["iteration"]), "proposer": record["proposer"]}
+        )
         row.update(
             run=_outcome(record),
             metric=_number(record["metric"]),
@@ -163,7 +196,8 @@ class RichView(View):
             spend=f"${record['cumulative_cost_usd']:.4f}",
         )
         self.rows.append(row)
-        self.current = None
+        if started is None:
+            self.current = None
         self.closest = f"closest stop: {closest}"
         self._refresh()
 

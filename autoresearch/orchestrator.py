@@ -5,26 +5,44 @@ family's baseline, with no proposer call), validate and deduplicate the proposal
 judge it, record it. Exactly one record per iteration goes to proposals.jsonl, whatever
 happened; the loop state is a fold over those records (:mod:`autoresearch.campaign`).
 
+Runs in flight (``workers`` > 1): the main thread proposes, validates and records; each run is
+supervised by a thread of its own (or a Ray task) and reports back through a queue. An iteration
+number is given when the proposal is made; its record is appended when its run ends, so records
+are in completion order. The proposer sees the runs in flight (``ProposerContext.running``) and
+dedup covers them. When a trigger fires, no new proposal is made; the runs in flight finish and
+are recorded, then the stop record is written (with the highest iteration number). With
+``workers`` = 1 each run finishes before the next proposal, as before.
+
 Durability: before a run starts, the iteration's record-to-be is written atomically to
-``runs/<run_id>/intent.json``. After a crash at any moment, ``--resume`` finds an intent
+``runs/<run_id>/intent.json``. After a crash at any moment, ``--resume`` finds every intent
 without a proposals record and finishes that iteration: it kills what is left of the run,
 then adopts its outcome from ``result.json`` (the runner's verdict) or from the run's line in
-runs.jsonl (train.py finished), or else marks the run dir interrupted and re-runs the same
-configuration under a new run id (``<run_id>-r2``, ...), listing the lost attempts in
-``interrupted_run_ids``. Iterations stay contiguous and no run id is recorded twice.
+runs.jsonl (train.py finished, with the intent's config and seed), or else marks the run dir
+interrupted and re-runs the same configuration under a new run id (``<run_id>-r2``, ...),
+listing the lost attempts in ``interrupted_run_ids``. No iteration and no run id is recorded twice.
 """
 
 from __future__ import annotations
 
 import json
+import queue
+import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import BASELINE_PROPOSER, CampaignError, CampaignPaths, CampaignState
+from autoresearch.campaign import (
+    BASELINE_PROPOSER,
+    RUN_STATUSES,
+    CampaignError,
+    CampaignPaths,
+    CampaignState,
+)
 from autoresearch.context import build_context, summarize_random_arm
+from autoresearch.early_stop import EarlyStopper
+from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
 from autoresearch.live import View
@@ -38,7 +56,7 @@ from autoresearch.runner import (
     run_prepare_check,
     stop_orphaned_run,
 )
-from autoresearch.space import ValidationError
+from autoresearch.space import ValidationError, canonical_key
 from autoresearch.stopping import Budgets, closest_trigger, first_trigger, spend_trigger, stop_gate
 from autoresearch.verdicts import run_verdict
 
@@ -69,6 +87,7 @@ RECORD_KEYS = (
     "wall_seconds",
     "returncode",
     "interrupted_run_ids",
+    "progress",
 )
 BASELINE_HYPOTHESIS = "the family's baseline configuration (the shared first experiment of every campaign)"
 
@@ -80,6 +99,9 @@ class LoopSettings:
     blind: bool = False
     timeout_per_run: float = 3600.0
     random_arm: Path | None = None
+    workers: int = 1  # experiments in flight at once
+    early_stop: str = "none"  # none, median or asha (autoresearch.early_stop)
+    executor: Executor | None = None  # None: runs supervised by threads of this process
 
 
 @dataclass(frozen=True)
@@ -143,12 +165,20 @@ class Orchestrator:
         repair_torn_tail(paths.runs_log)
         self.state = CampaignState.from_records(self.family, self.journal.read())
         for record in self.state.records:
-            if record["status"] in ("ran", "failed"):
+            if record["status"] in RUN_STATUSES:
                 ok = record["status"] == "ran"
                 self.proposer.tell(
                     record["config"], record["metric"] if ok else None, bool(ok and record["feasible"])
                 )
         self._sync_best()
+        self._in_flight: dict[str, dict[str, Any]] = {}  # run_id -> intent, in launch order
+        self._done: queue.Queue[tuple[dict[str, Any], RunResult | BaseException]] = queue.Queue()
+        self._threads: list[threading.Thread] = []
+        self._cancel = threading.Event()  # set when the loop unwinds: every run in flight is killed
+        self.stopper = None
+        if self.settings.early_stop != "none":
+            direction = self.family.registry["direction"]
+            self.stopper = EarlyStopper(self.settings.early_stop, direction, self.state.records)
         self._elapsed_base, self._started = self.state.elapsed_s, time.monotonic()
         arm = self.settings.random_arm
         self.random_summary = summarize_random_arm(arm, self.family) if arm else None
@@ -193,37 +223,58 @@ class Orchestrator:
             return result
         for line in read_jsonl(self.paths.runs_log):
             if isinstance(line, dict) and line.get("run_id") == intent["run_id"]:
+                if not self._matches(line, intent):
+                    continue  # not this run's line (e.g. forged or from another campaign): never adopted
                 value, reason = check_record(line, self.family.metric, intent["run_id"])
                 if reason is not None:
                     return RunResult("failed", intent["run_id"], None, reason, None, None)
                 return RunResult("ok", intent["run_id"], line, None, None, None, value)
         return None
 
+    def _matches(self, line: dict[str, Any], intent: dict[str, Any]) -> bool:
+        """Whether a runs.jsonl line is the run the intent started: same configuration and seed."""
+        config = line.get("config")
+        try:
+            same_config = (
+                isinstance(config, dict) and self.family.space.validate_full(config) == intent["config"]
+            )
+        except ValidationError:
+            return False
+        return same_config and line.get("seed") == intent["seed"]
+
     def _mark_interrupted(self, intent: dict[str, Any], why: str) -> None:
         write_json_atomic(
             self.paths.run_dir(intent["run_id"]) / "interrupted.json", {"time": _now(), "reason": why}
         )
 
-    def _recover(self) -> dict[str, Any] | None:
-        """Finish an in-flight iteration from its outcome; return its intent when it must be re-run.
+    def _recover(self) -> list[dict[str, Any]]:
+        """Finish every in-flight iteration from its outcome; return the intents that must be re-run.
 
-        Several intents can be pending only after a crash during a re-run: the latest attempt
-        of the next iteration is the live one, any other is marked superseded.
+        Several intents of one iteration are pending only after a crash during a re-run: its
+        latest attempt is the live one; any other, or one whose iteration is recorded, is superseded.
         """
-        pending = self._pending_intents()
-        current = [i for i in pending if i["iteration"] == self.state.iterations + 1]
-        latest = max(current, key=lambda i: len(i["interrupted_run_ids"]), default=None)
-        for intent in pending:
-            if intent is not latest:
-                stop_orphaned_run(self.paths.run_dir(intent["run_id"]))
-                self._mark_interrupted(intent, "superseded by a later attempt or record of its iteration")
-        if latest is None:
-            return None
-        result = self._adopt(latest)
-        if result is None:
-            return latest
-        self._finish_run(latest, result)
-        return None
+        live: dict[int, dict[str, Any]] = {}
+        superseded = []
+        for intent in self._pending_intents():
+            if intent["iteration"] in self.state.recorded:
+                superseded.append(intent)
+                continue
+            other = live.get(intent["iteration"])
+            if other is not None:
+                older, intent = sorted((other, intent), key=lambda i: len(i["interrupted_run_ids"]))
+                superseded.append(older)
+            live[intent["iteration"]] = intent
+        for intent in superseded:
+            stop_orphaned_run(self.paths.run_dir(intent["run_id"]))
+            self._mark_interrupted(intent, "superseded by a later attempt or record of its iteration")
+        reruns = []
+        for iteration in sorted(live):
+            result = self._adopt(live[iteration])
+            if result is None:
+                reruns.append(live[iteration])
+            else:
+                self._finish_run(live[iteration], result)
+        return reruns
 
     # ----- the loop ----------------------------------------------------------------------
 
@@ -240,39 +291,77 @@ class Orchestrator:
             trigger = first_trigger(state, budgets, self.elapsed())
             if state.last["status"] == "stop_accepted" or trigger is not None:
                 return self._outcome("already_finished", state.last["trigger"], state.last["reason"])
-        rerun = self._recover()
+        reruns = self._recover()
         problem = run_prepare_check(self.family)
         if problem is not None:
-            if rerun is not None:
-                self._mark_interrupted(rerun, "not re-run: prepare.py --check failed on resume")
+            for intent in reruns:
+                self._mark_interrupted(intent, "not re-run: prepare.py --check failed on resume")
             self._stop("prepare_check", problem)
             return self._outcome("prepare_failed", "prepare_check", problem)
-        if rerun is not None:
-            self._rerun(rerun)
-        while True:
-            trigger = first_trigger(state, budgets, self.elapsed())
-            if trigger is not None:
-                self._stop(trigger.name, trigger.message)
-                return self._outcome("stopped", trigger.name, trigger.message)
-            self._iteration()
-            if state.finished:
-                return self._outcome(state.last["status"], state.last["trigger"], state.last["reason"])
+        try:
+            for intent in reruns:
+                self._rerun(intent)
+            while True:
+                self._collect_finished()
+                trigger = first_trigger(state, budgets, self.elapsed())
+                if trigger is not None:
+                    self._drain()  # no new proposal; the runs in flight finish and are recorded first
+                    trigger = first_trigger(state, budgets, self.elapsed()) or trigger
+                    self._stop(trigger.name, trigger.message)
+                    return self._outcome("stopped", trigger.name, trigger.message)
+                if self._in_flight and (len(self._in_flight) >= self.settings.workers or self._caps_taken()):
+                    self._collect(block=True)
+                    continue
+                before = state.last
+                self._iteration()
+                if state.last is not before and state.finished:  # a stop record of this session
+                    return self._outcome(state.last["status"], state.last["trigger"], state.last["reason"])
+        except BaseException:
+            self._cancel.set()  # Ctrl-C, SIGTERM or a bug: kill the runs in flight, then unwind
+            for thread in self._threads:
+                thread.join()
+            raise
+
+    def _caps_taken(self) -> bool:
+        """Whether the runs in flight, counted as iterations and as successes, already fill
+        max_iters or max_runs: then the loop waits for them instead of proposing more."""
+        b, n = self.settings.budgets, len(self._in_flight)
+        return (b.max_iters is not None and self.state.iterations + n >= b.max_iters) or (
+            b.max_runs is not None and self.state.n_runs_ok + n >= b.max_runs
+        )
+
+    def _next_iteration(self) -> int:
+        return max([self.state.next_iteration - 1, *(i["iteration"] for i in self._in_flight.values())]) + 1
 
     def _stop(self, trigger: str, reason: str) -> None:
+        self._drain()
         name = self.settings.proposer_name
         self._commit(
-            self._record(self.state.iterations + 1, name, status="stopped", trigger=trigger, reason=reason)
+            self._record(self._next_iteration(), name, status="stopped", trigger=trigger, reason=reason)
         )
 
     def _outcome(self, status: str, trigger: str | None, reason: str) -> Outcome:
         s = self.state
         return Outcome(status, trigger, reason, s.iterations, s.n_runs_ok, s.best)
 
-    def _ask(self) -> tuple[str, Proposal | None]:
+    def _running(self) -> tuple[dict[str, Any], ...]:
+        """The experiments in flight, as the proposer is shown them."""
+        return tuple(
+            {
+                "iteration": i["iteration"],
+                "run_id": i["run_id"],
+                "overrides": i["overrides"],
+                "config": i["config"],
+                "hypothesis": ((i["proposal"] or {}).get("annotation") or {}).get("hypothesis"),
+            }
+            for i in self._in_flight.values()
+        )
+
+    def _ask(self, iteration: int) -> tuple[str, Proposal | None]:
         """(proposer name, proposal); the proposal is None when the campaign was stopped instead
         (the next call would pass the spend cap, or the API refused the key or the spend)."""
         state = self.state
-        if state.n_runs_attempted == 0:
+        if state.n_runs_attempted == 0 and not self._in_flight:
             return BASELINE_PROPOSER, Proposal(kind="propose", annotation={"hypothesis": BASELINE_HYPOTHESIS})
         blind = self.settings.blind
         budget = closest_trigger(state, self.settings.budgets, self.elapsed(), blind)
@@ -283,6 +372,7 @@ class Orchestrator:
             extra_warnings=(f"Budget: {budget}",),
             random_arm_summary=self.random_summary,
         )
+        context = replace(context, iteration=iteration, running=self._running())
         name = self.settings.proposer_name
         budgets = self.settings.budgets
         trigger = spend_trigger(state, budgets, projected_cost(self.proposer, context))
@@ -309,9 +399,9 @@ class Orchestrator:
 
     def _iteration(self) -> None:
         state = self.state
-        iteration = state.iterations + 1
+        iteration = self._next_iteration()
         self.view.iteration_started(iteration)
-        proposer, proposal = self._ask()
+        proposer, proposal = self._ask(iteration)
         if proposal is None:
             return
         self.view.proposal(iteration, proposer, proposal)
@@ -342,6 +432,7 @@ class Orchestrator:
             annotation = proposal.annotation if isinstance(proposal.annotation, dict) else {}
             accepted, why = stop_gate(annotation, state)
             if accepted:
+                self._drain()  # the stop record is the last: the runs in flight are recorded first
                 record("stop_accepted", why, trigger="stop_research")
             else:
                 record("stop_rejected", why)
@@ -358,7 +449,7 @@ class Orchestrator:
         if not overrides and proposer != BASELINE_PROPOSER:
             why = "the override map is empty: it changes nothing"
         else:
-            why = state.seen_at(overrides, config)
+            why = state.seen_at(overrides, config) or self._seen_in_flight(overrides, config)
         if why is not None:
             record("invalid", why, overrides=overrides, config=config)
             return
@@ -374,6 +465,15 @@ class Orchestrator:
         )
         self._start(intent)
 
+    def _seen_in_flight(self, overrides: dict[str, Any], config: dict[str, Any]) -> str | None:
+        """Why (overrides, config) repeats an experiment in flight, or None (dedup covers them too)."""
+        for intent in self._in_flight.values():
+            if canonical_key(overrides) == canonical_key(intent["overrides"]):
+                return f"this override map is running now, at iteration {intent['iteration']}"
+            if canonical_key(config) == canonical_key(intent["config"]):
+                return f"the resulting configuration is running now, at iteration {intent['iteration']}"
+        return None
+
     def _start(self, intent: dict[str, Any], supersedes: dict[str, Any] | None = None) -> None:
         run_dir = self.paths.run_dir(intent["run_id"])
         run_dir.mkdir(parents=True, exist_ok=True)  # a dir left empty by a crash before its intent is reused
@@ -383,17 +483,71 @@ class Orchestrator:
         if supersedes is not None:  # only once the new attempt is durable
             self._mark_interrupted(supersedes, f"the loop died during this run; re-run as {intent['run_id']}")
         self.view.run_started(intent["run_id"])
-        result = run_experiment(
-            self.family,
-            intent["config"],
-            run_id=intent["run_id"],
-            seed=intent["seed"],
-            run_dir=run_dir,
-            runs_log=self.paths.runs_log,
-            timeout=self.settings.timeout_per_run,
-            on_progress=self.view.run_progress,
+        self._launch(intent)
+
+    def _launch(self, intent: dict[str, Any]) -> None:
+        """Put the run in flight: in this thread with one worker, else on a thread of its own."""
+        self._in_flight[intent["run_id"]] = intent
+        if self.settings.workers == 1:
+            self._done.put((intent, self._execute(intent)))
+            return
+        self._threads = [t for t in self._threads if t.is_alive()]
+        thread = threading.Thread(target=self._supervise, args=(intent,), name=intent["run_id"], daemon=True)
+        self._threads.append(thread)
+        thread.start()
+
+    def _supervise(self, intent: dict[str, Any]) -> None:
+        try:
+            outcome: RunResult | BaseException = self._execute(intent)
+        except BaseException as err:  # re-raised in the main thread
+            outcome = err
+        self._done.put((intent, outcome))
+
+    def _execute(self, intent: dict[str, Any]) -> RunResult:
+        run_id = intent["run_id"]
+        task = {
+            "family": self.family,
+            "config": intent["config"],
+            "run_id": run_id,
+            "seed": intent["seed"],
+            "run_dir": self.paths.run_dir(run_id),
+            "runs_log": self.paths.runs_log,
+            "timeout": self.settings.timeout_per_run,
+        }
+        executor = self.settings.executor
+        if executor is not None and executor.name == "ray":
+            return executor.map(_run_task, [task])[0]
+        return run_experiment(
+            **task,
+            on_progress=lambda elapsed: self.view.run_progress(elapsed, run_id),
+            on_report=self.stopper.start(run_id) if self.stopper else None,
+            cancel=self._cancel,
         )
-        self._finish_run(intent, result)
+
+    def _collect(self, block: bool) -> None:
+        """Record one finished run; raises queue.Empty when none has finished and not ``block``."""
+        while True:
+            try:
+                intent, outcome = self._done.get(timeout=0.2) if block else self._done.get_nowait()
+                break
+            except queue.Empty:
+                if not block:
+                    raise
+        del self._in_flight[intent["run_id"]]
+        if isinstance(outcome, BaseException):
+            raise outcome
+        self._finish_run(intent, outcome)
+
+    def _collect_finished(self) -> None:
+        try:
+            while True:
+                self._collect(block=False)
+        except queue.Empty:
+            pass
+
+    def _drain(self) -> None:
+        while self._in_flight:
+            self._collect(block=True)
 
     def _rerun(self, intent: dict[str, Any]) -> None:
         lost = [*intent["interrupted_run_ids"], intent["run_id"]]
@@ -412,6 +566,8 @@ class Orchestrator:
             "returncode": result.returncode,
             "run_id": result.run_id,
         }
+        if result.progress:
+            fields["progress"] = result.progress
         if result.ok:
             feasible = family.is_feasible(result.record)
             judged = run_verdict(
@@ -425,11 +581,15 @@ class Orchestrator:
             fields.update(
                 status="ran", metric=result.metric, feasible=feasible, record=result.record, verdict=judged
             )
+        elif result.status == "early_stopped":  # never a result: no metric, never best, not a failure
+            fields.update(status="pruned", reason=result.reason)
         else:
             fields.update(status="failed", reason=result.reason)
         record = {**intent, **fields}
         record["best_so_far"] = state.best_after(record["metric"], record["feasible"])
         self._commit(record)
+        if self.stopper is not None:
+            self.stopper.finish(record)
         ok = result.ok
         self.proposer.tell(record["config"], result.metric if ok else None, bool(ok and record["feasible"]))
         self._sync_best()
@@ -451,3 +611,8 @@ class Orchestrator:
         self.journal.append(record)
         state.apply(record)
         self.view.record(record, closest_trigger(state, self.settings.budgets, self.elapsed()))
+
+
+def _run_task(task: dict[str, Any]) -> RunResult:
+    """One run as a plain function of picklable arguments (a Ray task)."""
+    return run_experiment(**task)

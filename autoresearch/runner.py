@@ -6,10 +6,16 @@ family's files are, and the family directory is put on ``PYTHONPATH`` so sibling
 The subprocess runs without a shell in its own session (process group); a wall-clock timeout,
 an interrupt of the caller, or leftover children after exit all end in ``os.killpg`` of that
 group. A run succeeds only if it exits 0 and prints exactly one valid ``FINAL_METRIC:`` line.
+
+A train.py may also print ``PROGRESS: {"step": <int>, "<metric>": <number>}`` lines (family
+contract, optional). They are read from the run's stdout file as they come, by the thread that
+supervises the run, kept as the run's learning curve, and handed to ``on_report``; when it answers
+True the run is stopped early (its process group killed) with status ``early_stopped``.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -21,7 +27,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -30,11 +36,12 @@ from autoresearch.family import Family
 from autoresearch.journal import read_json, repair_torn_tail, write_json_atomic
 
 FINAL_METRIC_PREFIX = "FINAL_METRIC:"
+PROGRESS_PREFIX = "PROGRESS:"
 KILL_GRACE_S = 2.0
 POLL_S = 0.05
 STDERR_TAIL = 600
 
-RunStatus = Literal["ok", "failed", "timeout"]
+RunStatus = Literal["ok", "failed", "timeout", "early_stopped"]
 
 # Set by a signal while interruptible_runs() is active: every run in flight, in any thread, stops.
 _INTERRUPTED = threading.Event()
@@ -49,6 +56,7 @@ class RunResult:
     wall_seconds: float | None
     returncode: int | None
     metric: float | None = None
+    progress: list[dict[str, Any]] | None = None  # the PROGRESS points, as {"step", "value"}
 
     @property
     def ok(self) -> bool:
@@ -103,6 +111,56 @@ def parse_final_metric(
         return None, None, f"FINAL_METRIC is not valid JSON ({err})"
     value, reason = check_record(record, metric, run_id)
     return (record if reason is None else None), value, reason
+
+
+def parse_progress(line: str, metric: str) -> dict[str, Any] | None:
+    """{"step", "value"} from a valid PROGRESS line, else None (a malformed line is ignored)."""
+    if not line.startswith(PROGRESS_PREFIX):
+        return None
+    try:
+        data = json.loads(line[len(PROGRESS_PREFIX) :])
+    except ValueError:
+        return None
+    if not isinstance(data, dict):
+        return None
+    step, value = data.get("step"), data.get(metric)
+    if not isinstance(step, int) or isinstance(step, bool):
+        return None
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        return None
+    return {"step": step, "value": float(value)}
+
+
+class ProgressReader:
+    """Reads the PROGRESS lines a run appends to its stdout file, as they come.
+
+    ``on_report(step, value)`` is asked at each new point; once it answers True, ``stop`` is set.
+    """
+
+    def __init__(self, path: Path, metric: str, on_report: Callable[[int, float], bool] | None):
+        self.path, self.metric, self.on_report = path, metric, on_report
+        self.offset = 0
+        self.points: list[dict[str, Any]] = []
+        self.stop = False
+
+    def poll(self) -> bool:
+        """Read what was appended since the last call; True when the run should stop."""
+        try:
+            with open(self.path, "rb") as f:
+                f.seek(self.offset)
+                chunk = f.read()
+        except FileNotFoundError:
+            return False
+        complete = chunk[: chunk.rfind(b"\n") + 1]  # a line still being written waits for the next poll
+        self.offset += len(complete)
+        for raw in complete.splitlines():
+            point = parse_progress(raw.decode("utf-8", errors="replace"), self.metric)
+            if point is None or self.stop:
+                continue
+            self.points.append(point)
+            if self.on_report is not None and self.on_report(point["step"], point["value"]):
+                self.stop = True
+        return self.stop
 
 
 def _tail(path: Path) -> str:
@@ -163,11 +221,13 @@ def run_in_group(
     timeout: float,
     on_start: Callable[[int], None] | None = None,
     on_progress: Callable[[float], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+    cancel: threading.Event | None = None,
 ) -> tuple[int, bool]:
     """(return code, timed out) of ``cmd`` run without a shell in its own process group.
 
-    On timeout, on an exception in the caller (Ctrl-C), and after a normal exit (children it left
-    running), the whole group is killed.
+    On timeout, on an exception in the caller (Ctrl-C), when ``should_stop()`` (asked every poll)
+    answers True, when ``cancel`` is set (raising KeyboardInterrupt), and after a normal exit (children it left running), the whole group is killed.
     """
     started = time.monotonic()
     proc = subprocess.Popen(
@@ -177,7 +237,7 @@ def run_in_group(
         if on_start is not None:
             on_start(proc.pid)
         while proc.poll() is None:
-            if _INTERRUPTED.is_set():
+            if _INTERRUPTED.is_set() or (cancel is not None and cancel.is_set()):
                 raise KeyboardInterrupt
             elapsed = time.monotonic() - started
             if elapsed > timeout:
@@ -185,6 +245,9 @@ def run_in_group(
                 return proc.returncode, True
             if on_progress is not None:
                 on_progress(elapsed)
+            if should_stop is not None and should_stop():
+                _terminate(proc)
+                return proc.returncode, False
             time.sleep(POLL_S)
     except BaseException:
         _terminate(proc)
@@ -193,10 +256,16 @@ def run_in_group(
     return proc.returncode, False
 
 
+@functools.lru_cache(maxsize=8)
+def _editable_defaults(train_source: str) -> dict[str, Any]:
+    """The editable values of a train.py source; parsed once, not once per run (loop overhead)."""
+    return dict(editable.read_region(train_source).values())
+
+
 def write_train_copy(family: Family, config: dict[str, Any], run_dir: Path) -> Path:
     """runs/<run_id>/train.py: the family's train.py with ``config`` patched in (only changed values)."""
     config = family.space.validate_full(config)
-    defaults = family.space.validate_full(editable.read_region(family.train_source).values())
+    defaults = family.space.validate_full(_editable_defaults(family.train_source))
     changes = {k: v for k, v in config.items() if type(v) is not type(defaults[k]) or v != defaults[k]}
     target = run_dir / "train.py"
     if target.exists():
@@ -215,8 +284,14 @@ def run_experiment(
     runs_log: Path,
     timeout: float,
     on_progress: Callable[[float], None] | None = None,
+    on_report: Callable[[int, float], bool] | None = None,
+    cancel: threading.Event | None = None,
 ) -> RunResult:
-    """Train ``config`` at ``seed`` in ``run_dir``; the result is also saved as run_dir/result.json."""
+    """Train ``config`` at ``seed`` in ``run_dir``; the result is also saved as run_dir/result.json.
+
+    ``on_report(step, value)`` hears each PROGRESS point; True stops the run early. Setting
+    ``cancel`` (another thread) kills the run and raises KeyboardInterrupt, leaving no result.
+    """
     run_dir.mkdir(parents=True, exist_ok=True)
     write_train_copy(family, config, run_dir)
     repair_torn_tail(runs_log)  # a run killed mid-append must not glue its fragment to this record
@@ -233,6 +308,7 @@ def run_experiment(
         str((run_dir / "out").resolve()),
     ]
     started = time.monotonic()
+    reader = ProgressReader(run_dir / "stdout.txt", family.metric, on_report)
     with open(run_dir / "stdout.txt", "wb") as out, open(run_dir / "stderr.txt", "wb") as err:
         returncode, timed_out = run_in_group(
             cmd,
@@ -243,9 +319,19 @@ def run_experiment(
             timeout=timeout,
             on_start=lambda pid: write_json_atomic(run_dir / "process.json", {"pid": pid, "cmd": cmd}),
             on_progress=on_progress,
+            should_stop=reader.poll,
+            cancel=cancel,
         )
     wall = time.monotonic() - started
-    result = _result(family, run_id, run_dir, returncode, wall, timed_out, timeout)
+    if reader.stop:
+        last = reader.points[-1]
+        reason = f"stopped early at step {last['step']} ({family.metric} {last['value']:.6g} then)"
+        result = RunResult("early_stopped", run_id, None, reason, wall, returncode)
+    else:
+        reader.on_report = None  # the run is over: the last lines are kept, not judged
+        reader.poll()
+        result = _result(family, run_id, run_dir, returncode, wall, timed_out, timeout)
+    result = replace(result, progress=reader.points or None)
     write_json_atomic(run_dir / "result.json", result.to_json())
     return result
 

@@ -76,11 +76,18 @@ def run_loop(
     *,
     blind: bool = False,
     timeout: float = 60.0,
+    workers: int = 1,
+    early_stop: str = "none",
     **budgets: Any,
 ) -> tuple[Outcome, list[dict[str, Any]]]:
     budgets.setdefault("max_iters", 30)
     settings = LoopSettings(
-        proposer_name=proposer.name, budgets=Budgets(**budgets), blind=blind, timeout_per_run=timeout
+        proposer_name=proposer.name,
+        budgets=Budgets(**budgets),
+        blind=blind,
+        timeout_per_run=timeout,
+        workers=workers,
+        early_stop=early_stop,
     )
     outcome = Orchestrator(Family.load(family_dir), proposer, campaign, settings).run()
     return outcome, read_jsonl(campaign / "proposals.jsonl")

@@ -23,6 +23,7 @@ import pytest
 
 from autoresearch.editable import read_region
 from autoresearch.family import Family
+from autoresearch.runner import parse_progress
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")
@@ -119,6 +120,16 @@ def test_train_prints_one_final_metric_appends_one_line_and_is_deterministic(nam
             "--out", str(tmp_path / f"out{i}"), cache=cache, check=True,
         )  # fmt: skip
         records.append(final_metric(result.stdout))
+        # PROGRESS (optional contract): the metric at up to 4 evenly spaced epochs, the last one included
+        curve = [
+            parse_progress(line, METRICS[name]) for line in result.stdout.splitlines() if "PROGRESS" in line
+        ]
+        steps = [point["step"] for point in curve]
+        assert (
+            1 <= len(curve) <= 4
+            and steps == sorted(set(steps))
+            and steps[-1] == records[-1]["config"]["EPOCHS"]
+        )
     logged = [json.loads(line) for line in log.read_text().splitlines()]
     assert logged == records
     first, second = records

@@ -151,8 +151,8 @@ def test_bad_group_directories_are_refused(tmp_path, capsys):
         plan_group(tmp_path / "single", family=family, proposer="tpe", settings={}, repeats=2, session={})
     assert main(["loop", "--resume", "--campaign", str(tmp_path / "nothing"), "--repeats", "2"]) == 2
     assert "--family is required" in capsys.readouterr().err
-    assert main(["loop", "--family", str(toy), "--proposer", "tpe", "--workers", "2"]) == 2
-    assert "--workers and --executor apply to --repeats" in capsys.readouterr().err
+    assert main(["loop", "--family", str(toy), "--proposer", "tpe", "--workers", "0"]) == 2
+    assert "--workers must be >= 1 (got 0)" in capsys.readouterr().err
 
 
 def test_a_broken_repeat_is_reported_and_the_others_run(tmp_path, capsys):

@@ -33,10 +33,12 @@ def processes_under(root: Path) -> list[int]:
     return found
 
 
-def check_trail(campaign: Path) -> list[dict]:
-    """The invariants that must hold after any sequence of crashes and resumes."""
+def check_trail(campaign: Path, in_order: bool = True) -> list[dict]:
+    """The invariants that must hold after any sequence of crashes and resumes (``in_order``
+    False: runs were in flight side by side, records are in completion order)."""
     records = read_jsonl(campaign / "proposals.jsonl")
-    assert [r["iteration"] for r in records] == list(range(1, len(records) + 1))
+    iterations = [r["iteration"] for r in records]
+    assert (iterations if in_order else sorted(iterations)) == list(range(1, len(records) + 1))
     run_ids = [r["run_id"] for r in records if r["run_id"]]
     assert len(run_ids) == len(set(run_ids))
     lost = [i for r in records for i in (r["interrupted_run_ids"] or [])]
@@ -98,6 +100,70 @@ def test_kill_9_of_a_running_loop_then_resume(tmp_path):
     assert records[0]["proposer"] == "baseline"
     assert len(read_json(campaign / "campaign.json")["sessions"]) == 3
     assert processes_under(campaign) == []  # no orphaned training process left behind
+
+
+def test_kill_9_with_several_runs_in_flight_then_resume(tmp_path):
+    toy, campaign = copy_toy(tmp_path), tmp_path / "c"
+    base = [sys.executable, "-m", "autoresearch", "loop", "--campaign", str(campaign), "--plain"]
+    start = [*base, "--family", str(toy), "--proposer", "random", "--max-iters", "10", "--workers", "2"]
+    proc = subprocess.Popen(
+        start, env={**os.environ, "TOY_SLEEP_S": "1.0"}, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+
+    def in_flight() -> list[str]:
+        recorded = {r["run_id"] for r in read_jsonl(campaign / "proposals.jsonl")}
+        runs = campaign / "runs"
+        started = [d.name for d in runs.iterdir() if (d / "process.json").exists()] if runs.is_dir() else []
+        return [run_id for run_id in started if run_id not in recorded]
+
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if (campaign / "proposals.jsonl").exists() and len(read_jsonl(campaign / "proposals.jsonl")) >= 2:
+            if len(in_flight()) == 2:
+                break
+        time.sleep(0.01)
+    interrupted = in_flight()
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert len(interrupted) == 2
+
+    done = subprocess.run([*base, "--resume"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert read_json(campaign / "campaign.json")["settings"]["workers"] == 2  # honoured on --resume
+    records = check_trail(campaign, in_order=False)
+    assert len(records) == 11 and records[-1]["trigger"] == "max_iters"
+    recorded = [r["run_id"] for r in records]
+    lost = [i for r in records for i in (r["interrupted_run_ids"] or [])]
+    for run_id in interrupted:  # adopted (it finished) or re-run exactly once under a new run id
+        assert (run_id in recorded) != (run_id in lost)
+        if run_id in lost:
+            assert sum(r.startswith(run_id + "-r") for r in recorded) == 1
+    assert processes_under(campaign) == []
+
+
+def test_a_runs_log_line_is_adopted_only_with_the_intents_config_and_seed(tmp_path, monkeypatch):
+    toy, campaign = copy_toy(tmp_path), tmp_path / "c"
+    crash_during(monkeypatch, "it0003", "before")
+    with pytest.raises(Crash):
+        run_loop(toy, ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}]), campaign, max_iters=4)
+    monkeypatch.undo()
+    intent = read_json(campaign / "runs" / "it0003" / "intent.json")
+    forged = [
+        {
+            "run_id": "it0003",
+            "loss": 0.0,
+            "feasible": True,
+            "seed": 0,
+            "config": {**intent["config"], "EPOCHS": 13},
+        },
+        {"run_id": "it0003", "loss": 0.0, "feasible": True, "seed": 7, "config": intent["config"]},
+    ]
+    with open(campaign / "runs.jsonl", "a") as log:
+        log.writelines(json.dumps(line) + "\n" for line in forged)
+    _, records = run_loop(toy, ScriptedProposer([]), campaign, max_iters=3)
+    third = records[2]
+    assert third["run_id"] == "it0003-r2" and third["interrupted_run_ids"] == ["it0003"]
+    assert third["status"] == "ran" and third["metric"] != 0.0
 
 
 def crash_during(monkeypatch, run_id: str, when: str) -> None:

@@ -61,6 +61,7 @@ class Campaign:
 
     @property
     def ran(self) -> list[dict[str, Any]]:
+        """Runs with a result: a failed or early-stopped (pruned) run is never a candidate."""
         return [r for r in self.records if r["status"] == "ran"]
 
     def single_seed_best(self) -> dict[str, Any] | None:

@@ -6,6 +6,7 @@ import argparse
 import os
 import signal
 import sys
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -14,7 +15,8 @@ from autoresearch import repeats
 from autoresearch.campaign import CampaignError, CampaignPaths
 from autoresearch.campaign_lock import CampaignLock
 from autoresearch.context import shown_registry
-from autoresearch.executors import add_executor_arguments, make_executor
+from autoresearch.early_stop import EARLY_STOP
+from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json, write_json_atomic
 from autoresearch.live import make_view
@@ -43,6 +45,9 @@ DEFAULTS: dict[str, Any] = {
     "random_arm": None,
     "enqueue": None,
     "space": None,  # key-free proposers: None searches DEFAULT_SPACE[proposer]
+    "workers": 1,
+    "executor": "local",
+    "early_stop": "none",
     **LLM_DEFAULTS,
 }
 API_KEYS = {"anthropic": "ANTHROPIC_API_KEY", "openai": "OPENAI_API_KEY"}
@@ -125,14 +130,23 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--campaign", help="campaign directory (default runs/<family>-<proposer>-<YYYYmmdd-HHMMSS>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the campaign in --campaign")
+    p.add_argument(
+        "--early-stop",
+        choices=EARLY_STOP,
+        help="stop runs whose PROGRESS curve is worse than the finished runs' (Optuna's MedianPruner or "
+        "SuccessiveHalvingPruner); default none",
+    )
     p.add_argument("--plain", action="store_true", help="one line per iteration even on a terminal")
     p.add_argument(
         "--repeats",
         type=_positive(int),
         help="run N independent campaigns of this arm (proposer seeds seed, seed+1, ...) in "
-        "--campaign/repeat-NN/; the execution flags below apply to them",
+        "--campaign/repeat-NN/; the execution flags below then apply to the campaigns, each running "
+        "one experiment at a time",
     )
     add_executor_arguments(p)
+    # One campaign: --workers experiments in flight; kept in campaign.json, so None means "as saved".
+    p.set_defaults(workers=None, executor=None)
     add_llm_arguments(p)
     return p
 
@@ -222,6 +236,12 @@ def build_loop(meta: dict[str, Any]) -> tuple[Family, Proposer, LoopSettings]:
         proposer = EnqueuedProposer(queue, proposer, family.space)
     if settings["random_arm"] and not Path(settings["random_arm"]).is_dir():
         raise UsageError(f"--random-arm {settings['random_arm']}: not a directory")
+    if settings["workers"] < 1:
+        raise UsageError(f"--workers must be >= 1 (got {settings['workers']})")
+    if settings["executor"] == "ray" and settings["early_stop"] != "none":
+        raise UsageError(
+            "--early-stop needs --executor local: a Ray task's progress is not read while it runs"
+        )
     loop = LoopSettings(
         proposer_name=meta["proposer"],
         budgets=Budgets(
@@ -236,18 +256,24 @@ def build_loop(meta: dict[str, Any]) -> tuple[Family, Proposer, LoopSettings]:
         blind=settings["blind"],
         timeout_per_run=settings["timeout_per_run"],
         random_arm=Path(settings["random_arm"]) if settings["random_arm"] else None,
+        workers=settings["workers"],
+        early_stop=settings["early_stop"],
     )
     return family, proposer, loop
+
+
+def _executor(args: argparse.Namespace, settings: dict[str, Any]) -> Executor | None:
+    """The Ray executor of ``--executor ray`` (None: local threads, no executor needed)."""
+    if settings["executor"] != "ray":
+        return None
+    return RayExecutor(args.ray_address, settings["workers"], args.cpus_per_task, args.gpus_per_task)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.repeats is not None or (args.campaign and repeats.is_group(args.campaign)):
         return _run_repeats(args)
+    executor = None
     try:
-        if args.workers != 1 or args.executor != "local":
-            raise UsageError(
-                "--workers and --executor apply to --repeats; one campaign runs one experiment at a time"
-            )
         root, meta = _plan(args)
         if args.dry_run:
             return dry_run(meta)
@@ -255,13 +281,15 @@ def run(args: argparse.Namespace) -> int:
         family.check_outside(root)
         lock = CampaignLock(root, "loop", create=True).acquire()  # one process per campaign
         write_json_atomic(CampaignPaths(root).campaign_json, meta)
-    except (UsageError, FamilyError, CampaignError, ValueError, ImportError) as err:
+        executor = _executor(args, meta["settings"])
+    except (UsageError, FamilyError, CampaignError, ValueError, ImportError, RuntimeError) as err:
         print(f"autoresearch loop: error: {err}", file=sys.stderr)
         return 2
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     resume_hint = f"autoresearch loop --resume --campaign {root}"
     try:
-        outcome = Orchestrator(family, proposer, root, loop, view=make_view(family.metric, args.plain)).run()
+        view = make_view(family.metric, args.plain)
+        outcome = Orchestrator(family, proposer, root, replace(loop, executor=executor), view=view).run()
     except KeyboardInterrupt:
         print(f"\ninterrupted; campaign: {root}\nresume with: {resume_hint}", file=sys.stderr)
         return 130
@@ -270,6 +298,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     finally:
         signal.signal(signal.SIGTERM, previous)
+        if executor is not None:
+            executor.close()
         lock.release()
     best = outcome.best
     best_text = f"{best['metric']:.6g} ({best['run_id']})" if best else "none (no feasible run)"
@@ -305,7 +335,9 @@ def _run_repeats(args: argparse.Namespace) -> int:
         family = resolve_family(args.family or saved["family"])
         proposer = args.proposer or saved.get("proposer") or _default_proposer()
         root = Path(args.campaign or f"runs/{family.name}-{proposer}-{now.astimezone():%Y%m%d-%H%M%S}")
-        settings = _settings(args, saved.get("settings", {}))
+        # the group's --workers run whole campaigns side by side; each campaign runs one run at a time
+        settings = {**_settings(args, saved.get("settings", {})), "workers": 1, "executor": "local"}
+        args.workers, args.executor = args.workers or 1, args.executor or "local"
         group = repeats.plan_group(
             root, family=family, proposer=proposer, settings=settings, repeats=args.repeats, session=session
         )

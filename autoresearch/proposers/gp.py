@@ -13,12 +13,12 @@ TPE at 30 trials on a synthetic objective (results/README.md).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import optuna
-from optuna.trial import FrozenTrial, TrialState
+from optuna.trial import FrozenTrial
 
-from autoresearch.proposers.base import Proposal, ProposerContext
 from autoresearch.proposers.tpe import TPEProposer, _derived_seed
 
 N_STARTUP_TRIALS = 5  # random draws before the GP is fitted (the baseline counts as one)
@@ -35,14 +35,10 @@ class GPProposer(TPEProposer):
         space: str = "bounds",
     ):
         super().__init__(registry, seed=seed, n_startup_trials=n_startup_trials, space=space)
-        self.pending: list[dict[str, Any]] = []
 
-    def propose(self, context: ProposerContext) -> Proposal:
-        configs = (self.family_space.validate_full(item["config"]) for item in context.running)
-        self.pending = [config for config in configs if self.space.contains(config)]
-        return super().propose(context)
-
-    def _ask(self, trials: list[FrozenTrial], attempt: int) -> dict[str, Any]:
+    def _ask(
+        self, trials: list[FrozenTrial], attempt: int, running: Sequence[FrozenTrial] = ()
+    ) -> dict[str, Any]:
         seed = _derived_seed("gp", self.seed, len(trials), attempt)
         sampler = optuna.samplers.GPSampler(
             seed=seed,
@@ -51,11 +47,5 @@ class GPProposer(TPEProposer):
             warn_independent_sampling=False,
         )
         study = optuna.create_study(direction=self.study_direction, sampler=sampler)
-        study.add_trials(trials)
-        study.add_trials(
-            optuna.trial.create_trial(
-                state=TrialState.RUNNING, params=config, distributions=self.distributions
-            )
-            for config in self.pending
-        )
+        study.add_trials([*trials, *running])
         return self.space.validate_full(study.ask(self.distributions).params)

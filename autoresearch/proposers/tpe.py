@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import math
 import random
+from collections.abc import Sequence
 from typing import Any
 
 import optuna
@@ -98,20 +99,32 @@ class TPEProposer(Proposer):
             )
         return trials
 
-    def _ask(self, trials: list[FrozenTrial], attempt: int) -> dict[str, Any]:
+    def _ask(
+        self, trials: list[FrozenTrial], attempt: int, running: Sequence[FrozenTrial] = ()
+    ) -> dict[str, Any]:
         sampler = optuna.samplers.TPESampler(
             seed=_derived_seed("tpe", self.seed, len(trials), attempt),
             n_startup_trials=self.n_startup_trials,
+            constant_liar=True,  # runs in flight are pending trials: TPE is steered away from them
         )
         study = optuna.create_study(direction=self.study_direction, sampler=sampler)
-        study.add_trials(trials)
+        study.add_trials([*trials, *running])
         return self.space.validate_full(study.ask(self.distributions).params)
 
     def propose(self, context: ProposerContext) -> Proposal:
         seen = seen_configs(context)
         trials = self.trials
+        # Runs in flight are pending trials (those outside a narrowed space cannot be Optuna trials).
+        configs = (self.family_space.validate_full(item["config"]) for item in context.running)
+        running = [
+            optuna.trial.create_trial(
+                state=TrialState.RUNNING, params=config, distributions=self.distributions
+            )
+            for config in configs
+            if self.space.contains(config)
+        ]
         for attempt in range(MAX_ASKS):
-            config = self._ask(trials, attempt)
+            config = self._ask(trials, attempt, running)
             if canonical_key(config) not in seen:
                 hypothesis = f"{self.name.upper()} suggestion after {len(trials)} observations"
                 return full_config_proposal(self.space, config, context, hypothesis)

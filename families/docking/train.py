@@ -11,7 +11,9 @@ on the env's own (A, B), through the two-step predictive CBF filter when RUNTIME
 on. The primary metric is score = mean terminal distance + 10 x mean keep-out violation rate
 (Eq. rpo_score, lower is better); a run is strict-feasible when success >= 0.80, the violation
 rate is exactly 0 and the minimum keep-out clearance is >= 0. The run ends with one line
-``FINAL_METRIC: {json}`` that is also appended to the runs log.
+``FINAL_METRIC: {json}`` that is also appended to the runs log. At four evenly spaced epochs it
+prints ``PROGRESS: {"step": epoch, METRIC: value}``, the metric on the first 16 evaluation starts,
+so that ``autoresearch loop --early-stop`` can stop a hopeless run.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ POOL_DEMOS = 256  # the N_DEMOS upper bound: one fixed pool, so a warm cache cov
 MAX_RECOVERY_FRAC = 0.5  # the RECOVERY_AUGMENT_FRAC upper bound
 POOL_RECOVERY = round(MAX_RECOVERY_FRAC * POOL_DEMOS)  # recovery trajectories: also one fixed pool
 N_EVAL = 128  # held-out, screened far-side evaluation starts
+N_PROGRESS = 16  # evaluation starts behind each PROGRESS line: a cheap proxy of the metric
+PROGRESS_POINTS = 4  # PROGRESS lines per run, at evenly spaced epochs (the last one included)
 DATA_SEED = 0  # the pools do not move with --seed; the seed varies only initialisation and batching
 TORCH_THREADS = 1  # fixed: reproducible on any host, and the audit runs two trainings on two cores
 SUCCESS_GATE = 0.80  # strict feasibility: success rate floor (with zero violations, clearance >= 0)
@@ -175,8 +179,11 @@ def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(obs), np.concatenate(actions)
 
 
-def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int):
-    """MSE behaviour cloning (Eq. bc_loss); returns the policy and the best epoch-mean loss."""
+def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int, report=None):
+    """MSE behaviour cloning (Eq. bc_loss); returns the policy and the best epoch-mean loss.
+
+    ``report(epoch, policy)`` is called, the policy in eval mode, at PROGRESS_POINTS evenly spaced epochs.
+    """
     mean, std = obs.mean(axis=0), obs.std(axis=0)
     std = np.where(std > 1e-8, std, 1.0)  # a constant input column stays finite
     policy = build_policy(config, mean, std).to(device)
@@ -193,6 +200,9 @@ def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.devi
     )
     generator = torch.Generator(device="cpu").manual_seed(seed)
     best_loss = math.inf
+    progress_epochs = {
+        math.ceil(config["EPOCHS"] * k / PROGRESS_POINTS) for k in range(1, PROGRESS_POINTS + 1)
+    }
     policy.train()
     for epoch in range(config["EPOCHS"]):
         order = torch.randperm(len(x), generator=generator).to(device)
@@ -210,6 +220,9 @@ def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.devi
         if not math.isfinite(epoch_loss):
             raise SystemExit(f"train.py: training diverged: loss is {epoch_loss} at epoch {epoch + 1}")
         best_loss = min(best_loss, epoch_loss)
+        if report is not None and (epoch + 1) in progress_epochs:
+            report(epoch + 1, policy.eval())  # eval mode and no RNG draw: training is not altered
+            policy.train()
     return policy.eval(), best_loss
 
 
@@ -307,8 +320,14 @@ def main() -> None:
 
     obs, actions = load_training_set(config)
     eval_starts, eval_goals = evaluation_starts(TASK, N_EVAL, problem=PROBLEM)
+
+    def report(epoch: int, policy: Policy) -> None:
+        starts, goals = eval_starts[:N_PROGRESS], eval_goals[:N_PROGRESS]
+        value = evaluate(policy, starts, goals, config["RUNTIME_CBF_FILTER"])[METRIC]
+        print("PROGRESS: " + json.dumps({"step": epoch, METRIC: value}, allow_nan=False), flush=True)
+
     started = time.perf_counter()
-    policy, best_loss = train(config, obs, actions, device, args.seed)
+    policy, best_loss = train(config, obs, actions, device, args.seed, report)
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
     metrics = evaluate(policy, eval_starts, eval_goals, config["RUNTIME_CBF_FILTER"])

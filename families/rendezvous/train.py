@@ -8,7 +8,9 @@ A time-conditioned MLP maps [x, y, z, vx, vy, vz, tau] to thrust / u_max and is 
 on screened expert demonstrations (Eq. bc_loss). It is then flown in closed loop from the 128
 held-out starts at once on the env's own (A, B); the primary metric is the mean terminal
 distance to the target in metres (lower is better). The run ends with one line
-``FINAL_METRIC: {json}`` that is also appended to the runs log.
+``FINAL_METRIC: {json}`` that is also appended to the runs log. At four evenly spaced epochs it
+prints ``PROGRESS: {"step": epoch, METRIC: value}``, the metric on the first 16 evaluation starts,
+so that ``autoresearch loop --early-stop`` can stop a hopeless run.
 """
 
 from __future__ import annotations
@@ -50,6 +52,8 @@ METRIC = "mean_terminal_distance"
 PROBLEM = RendezvousProblem()  # every constant: horizon, u_max, success thresholds, (A, B)
 POOL_DEMOS = 1024  # the N_DEMOS upper bound: one fixed pool, so a warm cache covers every config
 N_EVAL = 128  # held-out, reachability-screened evaluation starts
+N_PROGRESS = 16  # evaluation starts behind each PROGRESS line: a cheap proxy of the metric
+PROGRESS_POINTS = 4  # PROGRESS lines per run, at evenly spaced epochs (the last one included)
 DATA_SEED = 0  # the pool does not move with --seed; the seed varies only initialisation and batching
 TORCH_THREADS = 1  # fixed: reproducible on any host, and the audit runs two trainings on two cores
 OBS_DIM, ACT_DIM = 7, 3
@@ -150,8 +154,11 @@ def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray]:
     return demos.observations, demos.actions
 
 
-def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int):
-    """MSE behaviour cloning (Eq. bc_loss); returns the policy and the best epoch-mean loss."""
+def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int, report=None):
+    """MSE behaviour cloning (Eq. bc_loss); returns the policy and the best epoch-mean loss.
+
+    ``report(epoch, policy)`` is called, the policy in eval mode, at PROGRESS_POINTS evenly spaced epochs.
+    """
     mean, std = obs.mean(axis=0), obs.std(axis=0)
     std = np.where(std > 1e-8, std, 1.0)  # a constant input column (e.g. N_DEMOS = 1) stays finite
     policy = build_policy(config, mean, std).to(device)
@@ -168,6 +175,9 @@ def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.devi
     )
     generator = torch.Generator(device="cpu").manual_seed(seed)
     best_loss = math.inf
+    progress_epochs = {
+        math.ceil(config["EPOCHS"] * k / PROGRESS_POINTS) for k in range(1, PROGRESS_POINTS + 1)
+    }
     policy.train()
     for epoch in range(config["EPOCHS"]):
         order = torch.randperm(len(x), generator=generator).to(device)
@@ -185,6 +195,9 @@ def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.devi
         if not math.isfinite(epoch_loss):
             raise SystemExit(f"train.py: training diverged: loss is {epoch_loss} at epoch {epoch + 1}")
         best_loss = min(best_loss, epoch_loss)
+        if report is not None and (epoch + 1) in progress_epochs:
+            report(epoch + 1, policy.eval())  # eval mode and no RNG draw: training is not altered
+            policy.train()
     return policy.eval(), best_loss
 
 
@@ -238,8 +251,13 @@ def main() -> None:
 
     obs, actions = load_training_set(config)
     eval_starts, _ = evaluation_starts(TASK, N_EVAL, problem=PROBLEM)
+
+    def report(epoch: int, policy: Policy) -> None:
+        value = rendezvous_metrics(fly(policy, eval_starts[:N_PROGRESS]))[METRIC]
+        print("PROGRESS: " + json.dumps({"step": epoch, METRIC: value}, allow_nan=False), flush=True)
+
     started = time.perf_counter()
-    policy, best_loss = train(config, obs, actions, device, args.seed)
+    policy, best_loss = train(config, obs, actions, device, args.seed, report)
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
     metrics = rendezvous_metrics(fly(policy, eval_starts))

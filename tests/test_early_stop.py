@@ -1,0 +1,90 @@
+"""loop --early-stop: PROGRESS lines, Optuna's pruners, pruned runs kept out of every result."""
+
+import json
+
+import pytest
+from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
+
+from autoresearch.audit.inputs import Campaign
+from autoresearch.audit.verify import rank_candidates
+from autoresearch.campaign import CampaignPaths, CampaignState
+from autoresearch.context import build_context
+from autoresearch.early_stop import EarlyStopper
+from autoresearch.family import Family
+from autoresearch.prompting import render_prompt
+from autoresearch.runner import parse_progress
+
+# Slow to learn and far from the optimum: a curve clearly worse than the finished runs' at step 1.
+HOPELESS = {"LEARNING_RATE": 0.0001, "MOMENTUM": 0.0, "EPOCHS": 1, "BATCH_SIZE": 128}
+GOOD = {**TOY_OPTIMUM, "ACTIVATION": "tanh"}  # loss about 0.1: short of the target (0.05)
+SCRIPT = [GOOD, {"EPOCHS": 29}, {"EPOCHS": 31}, {"DROPOUT": 0.12}, HOPELESS]
+
+
+def progress_family(tmp_path):
+    """The toy family printing a four-point learning curve that ends at its loss."""
+    toy = copy_toy(tmp_path, "progress")
+    train = toy / "train.py"
+    anchor = "    noise = random.Random(seed)"
+    curve = (
+        "    for step in range(1, 5):  # the curve ends at the final loss\n"
+        '        print("PROGRESS: " + json.dumps({"step": step, "loss": loss * (2 - step / 4)}), flush=True)\n'
+        "        time.sleep(0.2)\n"
+    )
+    train.write_text(train.read_text().replace(anchor, curve + anchor, 1))
+    return toy
+
+
+def test_progress_lines_are_parsed_and_malformed_ones_ignored():
+    assert parse_progress('PROGRESS: {"step": 3, "loss": 0.5, "x": 1}', "loss") == {"step": 3, "value": 0.5}
+    for bad in (
+        'PROGRESS: {"step": 1.5, "loss": 1}',
+        'PROGRESS: {"step": 1}',
+        "PROGRESS: [1]",
+        "PROGRESS: {",
+    ):
+        assert parse_progress(bad, "loss") is None
+    assert parse_progress('PROGRESS: {"step": 1, "loss": NaN}', "loss") is None
+
+
+@pytest.mark.parametrize("pruner", ["median", "asha"])
+def test_a_hopeless_run_is_stopped_early_and_never_counts(tmp_path, pruner):
+    toy = progress_family(tmp_path)
+    outcome, records = run_loop(toy, ScriptedProposer(SCRIPT), tmp_path / "c", max_iters=6, early_stop=pruner)
+    ran = [r for r in records if r["status"] == "ran"]
+    assert all(len(r["progress"]) == 4 for r in ran)  # finished runs keep their whole curve
+    hopeless = records[5]
+    assert hopeless["config"]["LEARNING_RATE"] == 0.0001
+    assert hopeless["status"] == "pruned" and hopeless["run_status"] == "early_stopped"
+    assert hopeless["metric"] is None and hopeless["feasible"] is None and hopeless["verdict"] is None
+    assert 1 <= len(hopeless["progress"]) < 4 and "stopped early at step" in hopeless["reason"]
+    assert hopeless["wall_seconds"] < max(r["wall_seconds"] for r in ran)
+    # Never best, not a failure; the next proposer turn hears it and sees the curve.
+    state = CampaignState.from_records(Family.load(toy), records)
+    assert state.best["run_id"] != hopeless["run_id"] and state.consecutive_failures == 0
+    assert outcome.best["run_id"] == state.best["run_id"] and state.n_runs_ok == len(ran)
+    before_stop = CampaignState.from_records(Family.load(toy), records[:6])
+    context = build_context(before_stop, registry=Family.load(toy).registry, blind=False)
+    assert any("stopped early" in w for w in context.warnings)
+    shown = render_prompt(context)
+    assert '"progress"' in "".join(shown.history) and hopeless["run_id"] in "".join(shown.history)
+    # The audit never promotes it: it is no candidate.
+    family = Family.load(toy)
+    campaign = Campaign(CampaignPaths(tmp_path / "c"), {}, family, records)
+    assert hopeless["run_id"] not in [c["source"]["run_id"] for c in rank_candidates(campaign, 10)]
+    # On --resume the pruner's study is rebuilt from the records' curves.
+    study = EarlyStopper(pruner, "minimize", records).study
+    pruned = [r for r in records if r["status"] == "pruned"]  # ASHA also stops some good runs
+    assert [t.state.name for t in study.trials].count("PRUNED") == len(pruned) >= 1
+    assert len(study.trials) == len(ran) + len(pruned)
+
+
+def test_a_family_without_progress_lines_runs_as_before(tmp_path):
+    toy = copy_toy(tmp_path)
+    _, plain = run_loop(toy, ScriptedProposer(list(SCRIPT)), tmp_path / "a", max_iters=6)
+    _, pruned = run_loop(
+        toy, ScriptedProposer(list(SCRIPT)), tmp_path / "b", max_iters=6, early_stop="median"
+    )
+    keys = ("status", "config", "metric", "verdict", "best_so_far", "progress")
+    assert [[r[k] for k in keys] for r in pruned] == [[r[k] for k in keys] for r in plain]
+    assert all(r["progress"] is None for r in pruned) and pruned[5]["status"] == "ran"
+    assert json.loads((tmp_path / "b" / "runs" / "it0006" / "result.json").read_text())["progress"] is None
