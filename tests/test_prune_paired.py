@@ -20,6 +20,7 @@ from autoresearch.cli import main
 from autoresearch.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
+from autoresearch.report import write_report
 
 S = 0.01
 SIGMA = S * math.sqrt(4 / 3)  # four alternating +-S noise values
@@ -137,3 +138,15 @@ def test_noise_at_candidate_needs_a_verification(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "run `autoresearch verify" in err
     with pytest.raises(SystemExit, match="2"):  # argparse names the choices
         main(["prune", "--campaign", str(root), "--noise-at", "elsewhere"])
+
+
+def test_report_says_which_rule_decided_and_shows_each(p1):
+    _, root, _, _ = p1
+    prune(open_campaign(root), WORKERS, rule=PAIRED)  # nothing runs again; it is now the last rule run
+    text = write_report(root).read_text()
+    assert "the **paired** rule, run last, decided" in text
+    assert "| Parameter | paper | paired |" in text.replace(" | paired, noise at the candidate", "")
+    assert "| GAP | keep (-1.50) | keep (-1.50) |" in text  # the paper needs two seeds, paired one
+    assert "### The paper rule\n" in text and "### The paired rule (decided)" in text
+    assert "| Pruned recipe, reseeded (n=4) |" in text and "| Pruned recipe (paired rule), reseeded" in text
+    assert "each paired with the full configuration at the same seed" in text
