@@ -110,14 +110,18 @@ def leave_one_out(
     root, cid = campaign.step_dir(STEP), full["config_id"]
 
     def probe(names: list[str], stage: int) -> tuple[list[dict[str, Any]], dict[int, dict[str, Any]]]:
-        trials = [
-            Trial(f"loo-{cid}-{name}-s{seed}", {**config, name: baseline[name]}, seed)
-            for name, seed in ((name, probe_seeds[name][stage]) for name in names)
-        ]
-        seeds = sorted({probe_seeds[name][stage] for name in names}) if paired else []
-        trials += [Trial(f"full-{cid}-s{seed}", config, seed) for seed in seeds]
+        # Each reversion is followed by the full configuration at its seed, so that a stopped
+        # step leaves complete pairs behind (the paper's rule runs no full configuration).
+        trials, full_at = [], {}
+        for name in names:
+            seed = probe_seeds[name][stage]
+            trials.append(Trial(f"loo-{cid}-{name}-s{seed}", {**config, name: baseline[name]}, seed))
+            if paired and seed not in full_at:
+                full_at[seed] = len(trials)
+                trials.append(Trial(f"full-{cid}-s{seed}", config, seed))
         rows = run_trials(family, trials, executor, root / "prune.jsonl", root, campaign.timeout)
-        return rows[: len(names)], dict(zip(seeds, rows[len(names) :], strict=True))
+        reverted = [row for row in rows if row["key"].startswith("loo-")]
+        return reverted, {seed: rows[i] for seed, i in full_at.items()}
 
     decisions = {
         name: {
