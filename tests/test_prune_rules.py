@@ -22,6 +22,13 @@ def test_pairing_keeps_fewer_hitchhikers_when_the_seed_is_shared():
     assert paired["load"] == paper["load"] == 0.0
 
 
+def test_pairing_spreads_the_bad_seed_at_half_shared_variance():
+    half = Scenario("seed shares half the variance", 0.5, 1.0)
+    paper = rates(half, paired=False, noise_at="baseline", n=N)
+    paired = rates(half, paired=True, noise_at="baseline", n=N)
+    assert paired["both_hitch_kept"] < paper["both_hitch_kept"] - 0.04  # ~10 % against ~18 %
+
+
 def test_pairing_costs_when_the_seed_shares_nothing():
     """A paired difference then has twice a run's variance: the paired rule keeps more
     hitchhikers, so its advantage is the shared part of the seed, not the pairing as such."""
