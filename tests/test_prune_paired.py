@@ -150,3 +150,17 @@ def test_report_says_which_rule_decided_and_shows_each(p1):
     assert "### The paper rule\n" in text and "### The paired rule (decided)" in text
     assert "| Pruned recipe, reseeded (n=4) |" in text and "| Pruned recipe (paired rule), reseeded" in text
     assert "each paired with the full configuration at the same seed" in text
+
+
+def test_prune_and_audit_take_the_rule_flags(p1, capsys):
+    _, root, _, _ = p1
+    log = root / "audit" / "prune" / "prune.jsonl"
+    lines = len(read_jsonl(log))
+    assert main(["prune", "--campaign", str(root), "--paired"]) == 0
+    assert "rule: paired; unit sigma = 0.01155 (at the baseline)" in capsys.readouterr().out
+    flags = ["--paired", "--noise-at", "candidate", "--top", "1", "--seeds", "4", "--count", "2"]
+    assert main(["audit", "--campaign", str(root), *flags]) == 0  # verify as the fixture did
+    assert "[prune, paired, noise at the candidate rule]" in capsys.readouterr().out
+    assert read_audit(root)["prune_decided_by"]["key"] == "prune_paired_candidate"
+    assert "### The paired, noise at the candidate rule (decided)" in (root / "report.md").read_text()
+    assert len(read_jsonl(log)) == lines  # every pruning run was reused
