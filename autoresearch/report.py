@@ -316,6 +316,11 @@ def prune_section(campaign: Campaign, prune: dict[str, Any]) -> list[str]:
         return ["Not run (`autoresearch prune --campaign DIR`)."]
     if prune.get("status") == "skipped":
         return [prune["reason"] + "."]
+    if prune.get("status") != "done":
+        flags = (" --paired" if prune.get("paired") else "") + (
+            " --noise-at candidate" if (prune.get("unit") or {}).get("at") == "candidate" else ""
+        )
+        return [f"Not finished: run `autoresearch prune --campaign DIR{flags}` again to resume."]
     if prune.get("paired"):
         how = (
             "at its own probe seeds, each paired with the full configuration at the same seed "

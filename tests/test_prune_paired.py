@@ -11,7 +11,7 @@ import math
 import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
 
-from autoresearch.audit.auditjson import read_audit
+from autoresearch.audit.auditjson import read_audit, write_step
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise
 from autoresearch.audit.prune import Rule, prune
@@ -164,3 +164,16 @@ def test_prune_and_audit_take_the_rule_flags(p1, capsys):
     assert read_audit(root)["prune_decided_by"]["key"] == "prune_paired_candidate"
     assert "### The paired, noise at the candidate rule (decided)" in (root / "report.md").read_text()
     assert len(read_jsonl(log)) == lines  # every pruning run was reused
+
+
+def test_report_of_a_stopped_rule_says_how_to_resume(p1):
+    _, root, _, _ = p1
+    audit = read_audit(root)
+    write_step(
+        root, "prune_candidate", {**audit["prune_paired_candidate"], "paired": False, "status": "running"}
+    )
+    text = write_report(root).read_text()
+    assert (
+        "Not finished: run `autoresearch prune --campaign DIR --noise-at candidate` again to resume." in text
+    )
+    assert "| Parameter | paper | paper, noise at the candidate | paired |" in text
