@@ -37,9 +37,9 @@ def table(family: str) -> str:
     verify = audit["verify"]
     full = next(c for c in verify["candidates"] if c["config_id"] == verify["promoted"])
     sigma, sigma_r, mu_r = verify["noise"]["std"], full["sigma_r"], full["mu_r"]
-    rows = {
-        r["key"]: r for r in read_jsonl(campaign / "audit" / "prune" / "prune.jsonl") if r["status"] == "ok"
-    }
+    logged = read_jsonl(campaign / "audit" / "prune" / "prune.jsonl")
+    rows = {r["key"]: r for r in logged if r["status"] == "ok"}
+    failed = {r["key"]: r["status"] for r in logged if r["status"] != "ok" and r["key"] not in rows}
     paired_plan = audit.get("prune_paired_candidate") or audit.get("prune_paired") or {}
     seeds = paired_plan.get("probe_seeds", [])
     n = len(full["changed"])
@@ -74,7 +74,17 @@ def table(family: str) -> str:
             ]
             paired, paired_candidate = fmt(deltas, sigma), fmt(deltas, sigma_r)
         else:
-            paired = paired_candidate = "not run yet"
+            first = (
+                [f"loo-{full['config_id']}-{name}-s{own[0]}", f"full-{full['config_id']}-s{own[0]}"]
+                if own
+                else []
+            )
+            pending = [key for key in first if key in failed]
+            paired = paired_candidate = (
+                f"{pending[0].split('-')[0]} run at seed {own[0]}: {failed[pending[0]]} (retried on resume)"
+                if pending
+                else "not run yet"
+            )
         lines.append(f"| {name} | {paper} | {candidate} | {own or '—'} | {paired} | {paired_candidate} |")
     return "\n".join(lines)
 
