@@ -21,6 +21,7 @@ from matplotlib.ticker import MaxNLocator
 
 from autoresearch.audit.auditjson import read_audit
 from autoresearch.audit.inputs import Campaign, open_campaign
+from autoresearch.audit.prune import DECIDED_BY, RULES
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
 from autoresearch.runner import family_env
@@ -229,13 +230,16 @@ def audit_table(campaign: Campaign, audit: dict[str, Any], other_arms: list[Arm]
             f"| Agent, reseeded (n={shown['n']}) | **{_fmt(shown['mu_r'])} ± {_fmt(shown['sigma_r'], 2)}** "
             f"| {shown['n_feasible']} of {shown['n']} | **{shown['margin']:.1f}σ, {verdict}** |"
         )
-    pruned = (audit.get("prune") or {}).get("pruned")
-    if pruned and "mu_r" in pruned:
-        verdict = "published" if audit["prune"]["published"] else "not published"
-        rows.append(
-            f"| Pruned recipe, reseeded (n={pruned['n']}) | {_fmt(pruned['mu_r'])} ± {_fmt(pruned['sigma_r'], 2)} "
-            f"| {pruned['n_feasible']} of {pruned['n']} | {pruned['margin']:.1f}σ, {verdict} |"
-        )
+    for rule in RULES:  # the paper's rule first: the row of the paper's tables
+        part = audit.get(rule.key) or {}
+        pruned = part.get("pruned")
+        if pruned and "mu_r" in pruned:
+            verdict = "published" if part["published"] else "not published"
+            which = "" if rule.key == "prune" else f" ({rule.name} rule)"
+            rows.append(
+                f"| Pruned recipe{which}, reseeded (n={pruned['n']}) | {_fmt(pruned['mu_r'])} ± {_fmt(pruned['sigma_r'], 2)} "
+                f"| {pruned['n_feasible']} of {pruned['n']} | {pruned['margin']:.1f}σ, {verdict} |"
+            )
     return rows
 
 
@@ -299,14 +303,34 @@ def verify_section(campaign: Campaign, verify: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _unit_text(prune: dict[str, Any]) -> str:
+    unit = prune.get("unit") or {"at": "baseline", "sigma": prune["noise"]["std"]}
+    where = (
+        "the candidate's own reseed spread σ_R" if unit["at"] == "candidate" else "the baseline's seed noise"
+    )
+    return f"σ = {_fmt(unit['sigma'], 3)}, {where}"
+
+
 def prune_section(campaign: Campaign, prune: dict[str, Any]) -> list[str]:
     if not prune:
         return ["Not run (`autoresearch prune --campaign DIR`)."]
     if prune.get("status") == "skipped":
         return [prune["reason"] + "."]
+    if prune.get("status") != "done":
+        flags = (" --paired" if prune.get("paired") else "") + (
+            " --noise-at candidate" if (prune.get("unit") or {}).get("at") == "candidate" else ""
+        )
+        return [f"Not finished: run `autoresearch prune --campaign DIR{flags}` again to resume."]
+    if prune.get("paired"):
+        how = (
+            "at its own probe seeds, each paired with the full configuration at the same seed "
+            f"(seeds {prune['probe_seeds']}); Δ is the mean paired difference"
+        )
+    else:
+        how = f"at the shared probe seeds {prune['probe_seeds']}; Δ is measured against μ_R"
     lines = [
-        f"Each edit of {prune['promoted']} reverted alone (probe seeds {prune['probe_seeds']}; "
-        f"Δ in units of σ, negative = reverting hurts):",
+        f"Each edit of {prune['promoted']} reverted alone {how}, in units of {_unit_text(prune)} "
+        "(negative = reverting hurts):",
         "",
         "| Parameter | Axis | Default → value | Δ1/σ | Δ2/σ | Decision | Note |",
         "|---|---|---|---|---|---|---|",
@@ -331,6 +355,39 @@ def prune_section(campaign: Campaign, prune: dict[str, Any]) -> list[str]:
             f"{_mean_sd(pruned['mu_r'], pruned['sigma_r'], pruned['n'])}, m = {pruned['margin']:.2f}."
         )
     lines.append(f"**{prune['reason'][0].upper() + prune['reason'][1:]}.**")
+    return lines
+
+
+def pruning_sections(campaign: Campaign, audit: dict[str, Any]) -> list[str]:
+    """One section per leave-one-out rule that ran; with more than one, which decided and a
+    side-by-side table of their decisions."""
+    ran = [rule for rule in RULES if audit.get(rule.key)]
+    if len(ran) <= 1:
+        return prune_section(campaign, audit.get(ran[0].key) if ran else {})
+    decided = (audit.get(DECIDED_BY) or {}).get("key", "prune")
+    name = next((r.name for r in ran if r.key == decided), "paper")
+    lines = [
+        f"{len(ran)} leave-one-out rules ran (docs/audit.md compares them); the **{name}** rule, run last, decided "
+        "(the family's distilled recipe, if any, is its). Each edit's decision and its final Δ/σ:",
+        "",
+        "| Parameter | " + " | ".join(r.name for r in ran) + " |",
+        "|---|" + "---|" * len(ran),
+    ]
+    decisions = {r.key: {d["param"]: d for d in audit[r.key].get("decisions", [])} for r in ran}
+    for param in decisions[ran[0].key] or next(iter(decisions.values())):
+        cells = []
+        for r in ran:
+            d = decisions[r.key].get(param)
+            if d is None:
+                cells.append("—")
+                continue
+            delta = d.get("delta2_sigma", d.get("delta1_sigma"))
+            label = "drop†" if d["decision"] == "drop-dagger" else d["decision"]
+            cells.append(label + (f" ({delta:+.2f})" if delta is not None else ""))
+        lines.append(f"| {param} | " + " | ".join(cells) + " |")
+    for r in ran:
+        lines += ["", f"### The {r.name} rule" + (" (decided)" if r.key == decided else ""), ""]
+        lines += prune_section(campaign, audit[r.key])
     return lines
 
 
@@ -370,7 +427,7 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
         "",
         "## Leave-one-out pruning",
         "",
-        *prune_section(campaign, audit.get("prune") or {}),
+        *pruning_sections(campaign, audit),
         "",
         "## Figures",
         "",

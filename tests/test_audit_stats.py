@@ -80,6 +80,14 @@ def test_reproducibility_bound_prefers_the_tight_candidate():
     )
 
 
+def test_paired_loo_delta_is_the_mean_change_at_the_same_seeds():
+    # Reverting costs 0.1 at seed a and 0.3 at seed b (minimized): -0.2, whatever each seed's level.
+    assert stats.paired_loo_delta([1.1, 5.3], [1.0, 5.0], MIN) == pytest.approx(-0.2)
+    assert stats.paired_loo_delta([1.1], [1.0], MAX) == pytest.approx(0.1)
+    with pytest.raises(ValueError, match="one full-configuration value per reverted probe"):
+        stats.paired_loo_delta([1.0, 2.0], [1.0], MIN)
+
+
 def test_loo_delta_is_oriented_change_from_reverting():
     # minimize, mu_R = 1.0: reverting to 3.0 hurts -> Delta = -2 (load-bearing).
     assert stats.loo_delta([3.0], 1.0, MIN) == -2.0

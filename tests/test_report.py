@@ -34,6 +34,7 @@ def test_audit_command_runs_every_step(audited):
     family, root, code, _ = audited
     assert code == 0
     audit = read_audit(root)
+    assert audit.pop("prune_decided_by") == {"key": "prune", "rule": "paper"}  # the default rule
     assert {k: audit[k]["status"] for k in audit} == dict.fromkeys(
         ("noise", "verify", "prune", "random", "random_matched"), "done"
     )

@@ -1,18 +1,31 @@
 """Leave-one-out pruning of the promoted configuration (paper Eqs. loo, loodecision, prunereverify).
 
-Each edited parameter is reverted alone to its family default and probed at one fresh seed;
-an inconclusive probe escalates to a second seed (Delta2 is the two-seed mean). Dropped edits
-are then reverted together and the pruned recipe is re-verified at fresh seeds: it is published
-only if it clears the same gate and keeps the target. Otherwise the full configuration stands
-and the dropped group is reported as mattering jointly.
+The paper's rule (the default): each edited parameter is reverted alone to its family default and
+probed at one fresh seed shared by all parameters; an inconclusive probe escalates to a second
+seed (Delta2 is the two-seed mean), Delta measured against the candidate's reseeded mean mu_R in
+units of the baseline's seed noise. Two options sharpen it (issue 14), each kept under its own
+audit.json key beside the paper's:
+
+- paired: every parameter gets its own probe seeds, and the full configuration runs at the same
+  seeds; Delta is the mean paired difference, so no one unlucky seed decides for every parameter
+  and the seed's luck cancels to the extent the two runs share it (common random numbers).
+- noise at the candidate: the unit is the spread of the candidate's own reseeds (sigma_R from
+  verification) instead of the baseline's, which can be far wider (rendezvous: 0.38 m at the
+  4.1 m baseline against 0.0065 m at the 0.072 m recipe).
+
+Dropped edits are then reverted together and the pruned recipe is re-verified at fresh seeds: it
+is published only if it clears the same gate (against the baseline noise) and keeps the target.
+Otherwise the full configuration stands and the dropped group is reported as mattering jointly.
 
 Two cases the metric-only equation does not cover, both resolved as keep: a reverted run that
 fails to train, and one that is infeasible (reverting breaks the safety constraint, e.g. the
-docking family's run-time filter).
+docking family's run-time filter). A paired probe whose full-configuration run failed is kept too
+(a re-run retries it).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from autoresearch.audit import stats
@@ -20,42 +33,95 @@ from autoresearch.audit.auditjson import read_audit, set_family_field, write_ste
 from autoresearch.audit.inputs import AuditError, Campaign, config_id
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
-from autoresearch.audit.verify import assess
+from autoresearch.audit.verify import assess, is_this_campaign
 from autoresearch.executors import Executor
 from autoresearch.journal import read_json
 from autoresearch.verdicts import reaches_target
 
-STEP = "prune"
+STEP = "prune"  # the paper rule's audit.json key; the log and run directories of every rule
+DECIDED_BY = "prune_decided_by"  # audit.json: the key of the rule that ran last (it decides)
 N_PROBES = 2  # Eq. loodecision: one probe seed, escalated to two
+NOISE_AT = ("baseline", "candidate")
+
+
+@dataclass(frozen=True)
+class Rule:
+    """Which leave-one-out rule: the paper's (unpaired, baseline noise) or a sharpened one."""
+
+    paired: bool = False
+    noise_at: str = "baseline"
+
+    def __post_init__(self) -> None:
+        if self.noise_at not in NOISE_AT:
+            raise ValueError(f"--noise-at must be one of {', '.join(NOISE_AT)} (got {self.noise_at!r})")
+
+    @property
+    def key(self) -> str:
+        """Its audit.json key: "prune" for the paper's rule, then "_paired" and "_candidate" suffixes."""
+        return (
+            STEP + ("_paired" if self.paired else "") + ("_candidate" if self.noise_at == "candidate" else "")
+        )
+
+    @property
+    def name(self) -> str:
+        base = "paired" if self.paired else "paper"
+        return base + (", noise at the candidate" if self.noise_at == "candidate" else "")
+
+    @property
+    def plan_group(self) -> tuple[str, ...]:
+        """The rules that share this one's seed plan, hence its runs (the unit changes no run)."""
+        return tuple(Rule(self.paired, at).key for at in NOISE_AT)
+
+
+RULES = tuple(Rule(paired, at) for paired in (False, True) for at in NOISE_AT)
 
 
 def _probe(row: dict[str, Any]) -> dict[str, Any]:
     return {k: row[k] for k in ("seed", "run_id", "status", "metric", "feasible")}
 
 
-def _blocked(row: dict[str, Any]) -> str | None:
+def _blocked(row: dict[str, Any], full_row: dict[str, Any] | None) -> str | None:
     """Why a probe cannot be read as a metric change (then the edit is kept), or None."""
     if row["status"] != "ok":
         return f"the reverted configuration failed to run ({row['reason']})"
     if not row["feasible"]:
         return "the reverted configuration is infeasible: the edit carries the constraint"
+    if full_row is not None and full_row["status"] != "ok":
+        return f"the full configuration failed at the paired seed ({full_row['reason']}); re-run to retry"
     return None
 
 
 def leave_one_out(
-    campaign: Campaign, executor: Executor, full: dict[str, Any], sigma: float, probe_seeds: list[int]
+    campaign: Campaign,
+    executor: Executor,
+    full: dict[str, Any],
+    sigma: float,
+    probe_seeds: dict[str, list[int]],
+    paired: bool = False,
 ) -> dict[str, dict[str, Any]]:
-    """Eqs. loo and loodecision for every edit of ``full``: {param: its decision record}."""
+    """Eqs. loo and loodecision for every edit of ``full``: {param: its decision record}.
+
+    ``probe_seeds[name]`` are that edit's probe seeds in escalation order (the paper's rule gives
+    every edit the same two); ``paired`` also runs the full configuration at each probe seed and
+    decides on the paired differences, in units of ``sigma``.
+    """
     family, sign = campaign.family, campaign.family.direction
     config, mu_r, baseline = full["config"], full["mu_r"], family.baseline_config
-    root = campaign.step_dir(STEP)
+    root, cid = campaign.step_dir(STEP), full["config_id"]
 
-    def probe(names: list[str], seed: int) -> list[dict[str, Any]]:
-        trials = [
-            Trial(f"loo-{full['config_id']}-{name}-s{seed}", {**config, name: baseline[name]}, seed)
-            for name in names
-        ]
-        return run_trials(family, trials, executor, root / "prune.jsonl", root, campaign.timeout)
+    def probe(names: list[str], stage: int) -> tuple[list[dict[str, Any]], dict[int, dict[str, Any]]]:
+        # Each reversion is followed by the full configuration at its seed, so that a stopped
+        # step leaves complete pairs behind (the paper's rule runs no full configuration).
+        trials, full_at = [], {}
+        for name in names:
+            seed = probe_seeds[name][stage]
+            trials.append(Trial(f"loo-{cid}-{name}-s{seed}", {**config, name: baseline[name]}, seed))
+            if paired and seed not in full_at:
+                full_at[seed] = len(trials)
+                trials.append(Trial(f"full-{cid}-s{seed}", config, seed))
+        rows = run_trials(family, trials, executor, root / "prune.jsonl", root, campaign.timeout)
+        reverted = [row for row in rows if row["key"].startswith("loo-")]
+        return reverted, {seed: rows[i] for seed, i in full_at.items()}
 
     decisions = {
         name: {
@@ -66,25 +132,65 @@ def leave_one_out(
         }
         for name in full["changed"]
     }
-    stage = list(decisions)  # stage 1: every edit at the first probe seed; stage 2: the escalated
-    for seed in probe_seeds:
-        for name, row in zip(stage, probe(stage, seed), strict=True):
+    stage = list(decisions)  # stage 1: every edit at its first probe seed; stage 2: the escalated
+    for k in range(N_PROBES):
+        if not stage:
+            break
+        reverted, at_seed = probe(stage, k)
+        for name, row in zip(stage, reverted, strict=True):
             d = decisions[name]
+            full_row = at_seed.get(row["seed"])
             d.setdefault("probes", []).append(_probe(row))
-            d["note"] = _blocked(row)
+            if full_row is not None:
+                d["probes"][-1].update(full_run_id=full_row["run_id"], full_metric=full_row["metric"])
+            d["note"] = _blocked(row, full_row)
             if d["note"]:
                 d["decision"] = stats.KEEP
                 continue
             key = "delta1" if len(d["probes"]) == 1 else "delta2"  # Delta2: the two-seed mean
-            d[key] = stats.loo_delta([p["metric"] for p in d["probes"]], mu_r, sign)
+            values = [p["metric"] for p in d["probes"]]
+            if paired:
+                d[key] = stats.paired_loo_delta(values, [p["full_metric"] for p in d["probes"]], sign)
+            else:
+                d[key] = stats.loo_delta(values, mu_r, sign)
             d[f"{key}_sigma"] = d[key] / sigma
             d["decision"] = stats.loo_decision(d["delta1"], sigma, d.get("delta2"))
         stage = [name for name in stage if decisions[name]["decision"] == stats.ESCALATE]
     return decisions
 
 
-def prune(campaign: Campaign, executor: Executor, *, n_seeds: int | None = None) -> dict[str, Any]:
-    """Leave-one-out over the promoted configuration, then re-verification of the pruned recipe."""
+def _unit(rule: Rule, noise: dict[str, Any], full: dict[str, Any]) -> dict[str, Any]:
+    if rule.noise_at == "baseline":
+        return {"at": "baseline", "sigma": noise["std"], "n": noise["k"]}
+    sigma_r = full.get("sigma_r")
+    if not sigma_r or sigma_r <= 0:
+        raise AuditError(
+            f"--noise-at candidate: the promoted configuration {full['config_id']} has no positive reseed "
+            f"spread sigma_R in its verification (got {sigma_r!r}); re-run `autoresearch verify` with --seeds >= 2"
+        )
+    return {"at": "candidate", "sigma": sigma_r, "n": full["n"]}
+
+
+def _plan(
+    campaign: Campaign, rule: Rule, names: list[str], n_seeds: int
+) -> tuple[dict[str, list[int]], list[int]]:
+    """Fresh probe seeds per edit, and the re-verification seeds, shared by the rules of one plan group."""
+    family = campaign.family
+    used = used_seeds(family.default_seed, family.seed_noise, [campaign.root], skip_step=rule.plan_group)
+    n_probe = N_PROBES * len(names) if rule.paired else N_PROBES
+    seeds = fresh_seeds(used, n_probe + n_seeds)
+    if rule.paired:  # edit i: seeds i then n + i, so no seed decides for two edits
+        per = {name: [seeds[i + k * len(names)] for k in range(N_PROBES)] for i, name in enumerate(names)}
+    else:
+        per = {name: seeds[:N_PROBES] for name in names}
+    return per, seeds[n_probe:]
+
+
+def prune(
+    campaign: Campaign, executor: Executor, *, n_seeds: int | None = None, rule: Rule = Rule()
+) -> dict[str, Any]:
+    """Leave-one-out over the promoted configuration under ``rule``, then re-verification of the
+    pruned recipe; the result goes to audit.json[rule.key]."""
     verified = read_audit(campaign.root).get("verify")
     if not verified or verified.get("status") != "done":
         raise AuditError(
@@ -92,25 +198,28 @@ def prune(campaign: Campaign, executor: Executor, *, n_seeds: int | None = None)
         )
     if verified["promoted"] is None:
         part = {"status": "skipped", "reason": "verification promoted no configuration: nothing to prune"}
-        write_step(campaign.root, STEP, part)
+        _finish(campaign, rule, part)
         return part
     family, sign = campaign.family, campaign.family.direction
     noise = verified["noise"]  # the noise the promotion was judged against
     full = next(c for c in verified["candidates"] if c["config_id"] == verified["promoted"])
+    unit = _unit(rule, noise, full)
     n_seeds = n_seeds or len(verified["seeds"])
     if n_seeds < 2:
         raise ValueError(f"--seeds {n_seeds}: re-verification needs >= 2 seeds")
-    used = used_seeds(family.default_seed, family.seed_noise, [campaign.root], skip_step=STEP)
-    seeds = fresh_seeds(used, N_PROBES + n_seeds)
+    per_edit, reverify_seeds = _plan(campaign, rule, full["changed"], n_seeds)
     part: dict[str, Any] = {
+        "rule": rule.name,
+        "paired": rule.paired,
+        "unit": unit,
         "promoted": full["config_id"],
         "mu_r": full["mu_r"],
         "noise": noise,
-        "probe_seeds": seeds[:N_PROBES],
-        "reverify_seeds": seeds[N_PROBES:],
+        "probe_seeds": sorted({s for seeds in per_edit.values() for s in seeds}),
+        "reverify_seeds": reverify_seeds,
     }
-    write_step(campaign.root, STEP, {**part, "status": "running"})
-    decisions = leave_one_out(campaign, executor, full, noise["std"], part["probe_seeds"])
+    write_step(campaign.root, rule.key, {**part, "status": "running"})
+    decisions = leave_one_out(campaign, executor, full, unit["sigma"], per_edit, paired=rule.paired)
     dropped = [n for n, d in decisions.items() if d["decision"] in stats.DROPPED]
     part.update(
         decisions=list(decisions.values()),
@@ -123,7 +232,7 @@ def prune(campaign: Campaign, executor: Executor, *, n_seeds: int | None = None)
     )
     if not dropped:
         part["reason"] = "every edit is load-bearing: nothing to prune"
-        write_step(campaign.root, STEP, part)
+        _finish(campaign, rule, part)
         return part
 
     pruned_config = {**full["config"], **{name: family.baseline_config[name] for name in dropped}}
@@ -144,35 +253,37 @@ def prune(campaign: Campaign, executor: Executor, *, n_seeds: int | None = None)
             else "has no target to keep (the full recipe did not reach it either)"
         )
         part["reason"] = f"the pruned recipe (without {', '.join(dropped)}) clears the gate and {kept}"
-        _attach_distilled(campaign, full, pruned, dropped)
+        _attach_distilled(campaign, full, pruned, dropped, rule)
     else:
         lost = pruned["reason"] if not pruned["passed"] else "it loses the target the full recipe reached"
         part["reason"] = (
             f"the dropped group {', '.join(dropped)} matters jointly: the pruned recipe fails re-verification "
             f"({lost}); the full configuration is kept"
         )
-    write_step(campaign.root, STEP, part)
+    _finish(campaign, rule, part)
     return part
 
 
+def _finish(campaign: Campaign, rule: Rule, part: dict[str, Any]) -> None:
+    write_step(campaign.root, rule.key, part)
+    write_step(campaign.root, DECIDED_BY, {"key": rule.key, "rule": rule.name})
+
+
 def _attach_distilled(
-    campaign: Campaign, full: dict[str, Any], pruned: dict[str, Any], dropped: list[str]
+    campaign: Campaign, full: dict[str, Any], pruned: dict[str, Any], dropped: list[str], rule: Rule
 ) -> None:
     """A published pruned recipe is recorded beside the family best, which stays the promoted full
     configuration (the paper's docking case: the distilled recipe clears the gate, but the full one
     is the more accurate and reproducible)."""
     best = read_json(campaign.family.path / "family.json").get("best") or {}
     source = best.get("source") or {}
-    if not (
-        isinstance(source, dict)
-        and source.get("campaign") == str(campaign.root)
-        and best["config"] == full["config"]
-    ):
+    if not (is_this_campaign(source, campaign) and best["config"] == full["config"]):
         return  # the family best came from elsewhere; the distilled recipe stays in audit.json
     distilled = {
         "config": pruned["config"],
         "metric": pruned["mu_r"],
         "std": pruned["sigma_r"],
         "n": pruned["n"],
+        "rule": rule.name,
     }
     set_family_field(campaign.family.path, "best", {**best, "distilled": {**distilled, "dropped": dropped}})

@@ -6,7 +6,7 @@ inputs plans the same seeds; each step stores its plan in audit.json before it r
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -45,19 +45,21 @@ def used_seeds(
     default_seed: int,
     seed_noise: dict | None,
     campaign_dirs: Iterable[Path] = (),
-    skip_step: str | None = None,
+    skip_step: str | Collection[str] = (),
 ) -> set[int]:
     """Every seed used so far: the family's default seed and noise seeds, and for each campaign
     directory the seeds of its proposals and runs and every seed its audit planned.
 
-    ``skip_step`` leaves out that audit step's own plan, so that re-planning the step reproduces
-    it (a resumed step finds its runs) and a larger --seeds extends it.
+    ``skip_step`` (one step or several) leaves out those audit steps' own plans, so that
+    re-planning a step reproduces it (a resumed step finds its runs) and a larger --seeds extends
+    it; steps skipped together share one plan (the pruning rules that reuse each other's runs).
     """
+    skip = {skip_step} if isinstance(skip_step, str) else set(skip_step)
     used = {default_seed} | _seeds_in(seed_noise or {})
     for campaign in campaign_dirs:
         campaign = Path(campaign)
         for name in ("proposals.jsonl", "runs.jsonl"):
             used |= {r["seed"] for r in read_jsonl(campaign / name) if isinstance(r.get("seed"), int)}
         audit = read_audit(campaign)
-        used |= _seeds_in({step: part for step, part in audit.items() if step != skip_step})
+        used |= _seeds_in({step: part for step, part in audit.items() if step not in skip})
     return used

@@ -161,6 +161,15 @@ def loo_delta(values: Sequence[float], mu_r: float, sign: int) -> float:
     return sign * (float(np.mean(values)) - mu_r)
 
 
+def paired_loo_delta(reverted: Sequence[float], full: Sequence[float], sign: int) -> float:
+    """The paired form of Eq. loo: sigma_dir (f(theta_-i; s) - f(theta; s)) averaged over the probe
+    seeds s, the full configuration run at the same seeds (common random numbers), so the seed's
+    own luck cancels instead of deciding; used with Eq. loodecision's thresholds unchanged."""
+    if len(reverted) != len(full) or not reverted:
+        raise ValueError("paired_loo_delta: one full-configuration value per reverted probe is required")
+    return sign * float(np.mean(np.asarray(reverted, dtype=float) - np.asarray(full, dtype=float)))
+
+
 def loo_decision(delta1: float, sigma: float, delta2: float | None = None) -> str:
     """Eq. loodecision with one-seed then two-seed escalation.
 

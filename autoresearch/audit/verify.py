@@ -13,6 +13,8 @@ erratic configuration loses to a tight one, as in both of the paper's campaigns.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Any
 
 from autoresearch.audit import stats
@@ -106,13 +108,38 @@ def assess(
     return out
 
 
+def repository_root(family: Family) -> Path:
+    """The repository holding the family (the nearest ancestor with a .git), else the directory
+    holding the family: what family.json's paths are written relative to."""
+    for parent in family.path.resolve().parents:
+        if (parent / ".git").exists():
+            return parent
+    return family.path.resolve().parent
+
+
+def campaign_ref(campaign: Campaign) -> str:
+    """The campaign's path as family.json records it: relative to the repository root, so a
+    committed family.json holds no path of the machine that ran the audit."""
+    return Path(os.path.relpath(campaign.root.resolve(), repository_root(campaign.family))).as_posix()
+
+
+def is_this_campaign(source: Any, campaign: Campaign) -> bool:
+    """Whether a family best's ``source`` names ``campaign`` (relative, or absolute as older audits wrote)."""
+    if not isinstance(source, dict) or not isinstance(source.get("campaign"), str):
+        return False
+    recorded = Path(source["campaign"])
+    if not recorded.is_absolute():
+        recorded = repository_root(campaign.family) / recorded
+    return os.path.normpath(recorded) == os.path.normpath(campaign.root.resolve())
+
+
 def _replaces_family_best(family: Family, candidate: dict[str, Any], campaign: Campaign) -> tuple[bool, str]:
     """A promotion replaces the family's best unless another campaign's best is more reproducible."""
     current = family.registry.get("best")
     if not current:
         return True, "the family had no best"
     source = current.get("source") or {}
-    if isinstance(source, dict) and source.get("campaign") == str(campaign.root):
+    if is_this_campaign(source, campaign):
         return True, "replaces this campaign's earlier promotion"
     if current.get("std") is None or (current.get("n") or 0) < 2:
         return True, "the family's previous best was not reseeded"
@@ -177,7 +204,7 @@ def verify(campaign: Campaign, executor: Executor, *, top: int = 3, n_seeds: int
                     "std": promoted["sigma_r"],
                     "n": promoted["n"],
                     "source": {
-                        "campaign": str(campaign.root),
+                        "campaign": campaign_ref(campaign),
                         "run_id": promoted["source"]["run_id"],
                         "step": STEP,
                     },

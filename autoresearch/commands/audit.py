@@ -12,7 +12,7 @@ from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.verify import verify
 from autoresearch.campaign_lock import CampaignLock
-from autoresearch.commands.prune import print_prune
+from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import print_verify
 from autoresearch.executors import add_executor_arguments
@@ -38,6 +38,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--count", type=positive_int, help="random-arm experiments (default: the campaign's)")
     p.add_argument("--matched-range", action="store_true", help="also run a matched-range random arm")
     p.add_argument("--arm", action="append", type=Path, default=[], help="another arm to plot (repeatable)")
+    add_rule_arguments(p)
     add_executor_arguments(p)
     return p
 
@@ -59,8 +60,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"[noise] measured: {noise['mean']:.6g} +- {noise['std']:.3g} (K={noise['k']})")
         print("[verify]")
         print_verify(verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds))
-        print("[prune]")
-        print_prune(prune(open_campaign(args.campaign), executor))
+        print(f"[prune, {rule_of(args).name} rule]")
+        print_prune(prune(open_campaign(args.campaign), executor, rule=rule_of(args)))
         for matched in (False, True) if args.matched_range else (False,):
             print("[random" + (", matched range]" if matched else "]"))
             print_random(
