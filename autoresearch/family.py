@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from autoresearch.editable import EditableError, read_region
+from autoresearch.loop.editable import EditableError, read_region
 from autoresearch.space import SearchSpace, SpaceError, ValidationError
 
 REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")

@@ -25,9 +25,9 @@ from autoresearch.audit.verify import verify
 from autoresearch.executors import Executor, LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl, write_json_atomic
-from autoresearch.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.random_search import RandomProposer
-from autoresearch.stopping import Budgets
 
 TOY = Path(__file__).resolve().parents[1] / "tests" / "toy_family"
 ITERATIONS, NOISE_SEEDS, TOP, SEEDS = 8, 6, 2, 6

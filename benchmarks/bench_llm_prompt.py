@@ -26,12 +26,12 @@ import anthropic
 import httpx2
 import openai
 
-from autoresearch.context import shown_registry
 from autoresearch.family import resolve_family
-from autoresearch.pricing import billed_price
+from autoresearch.loop.context import shown_registry
 from autoresearch.proposers.anthropic_api import AnthropicProposer
 from autoresearch.proposers.base import ProposerContext
 from autoresearch.proposers.openai_api import OpenAIProposer
+from autoresearch.proposers.pricing import billed_price
 from autoresearch.proposers.tools import PROPOSE
 
 CHARS_PER_TOKEN = 4

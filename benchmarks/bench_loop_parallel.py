@@ -25,9 +25,9 @@ from pathlib import Path
 
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
-from autoresearch.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.random_search import RandomProposer
-from autoresearch.stopping import Budgets
 
 TOY = Path(__file__).resolve().parents[1] / "tests" / "toy_family"
 

@@ -3,7 +3,7 @@
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/run_all.py [--quick] [--tuned] [--out PATH]
 
 Reuses the measurements of bench_envs.py, bench_experts_cbf.py and bench_audit.py; times each
-family's train.py through autoresearch.runner, the loop's own path (a patched copy in a
+family's train.py through autoresearch.loop.runner, the loop's own path (a patched copy in a
 temporary run directory, run as a subprocess); measures the loop's overhead per iteration on a
 temporary copy of the toy family; and reads TPE vs random from the committed campaign logs in
 results/ (nothing is run for that row). A few minutes; ``--quick`` shortens every measurement
@@ -31,10 +31,10 @@ from bench_audit import audit_walls, make_campaign
 from bench_envs import NATIVE_ENVS, SYNC_ENVS, bench_single, bench_vector
 from bench_experts_cbf import cbf_measure, docking_expert_run, rendezvous_expert_time
 
-from autoresearch.campaign import CampaignPaths, CampaignState
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
-from autoresearch.runner import run_experiment
+from autoresearch.loop.campaign import CampaignPaths, CampaignState
+from autoresearch.loop.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")

@@ -10,9 +10,9 @@ from loop_helpers import TOY_FAMILY, ScriptedProposer
 
 from autoresearch.family import Family
 from autoresearch.journal import write_json_atomic
-from autoresearch.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.base import Proposer
-from autoresearch.stopping import Budgets
 
 AUDIT_FAMILY = Path(__file__).resolve().parent / "audit_family"
 __all__ = ["AUDIT_FAMILY", "P1", "P1W", "P2", "TOY_FAMILY", "ScriptedProposer", "copy_family", "run_campaign"]

@@ -14,8 +14,8 @@ import anthropic
 import httpx2
 import openai
 
-from autoresearch import prompting
-from autoresearch.context import shown_registry
+from autoresearch.loop.context import shown_registry
+from autoresearch.proposers import prompting
 from autoresearch.proposers.base import ProposerContext
 
 # The context order both proposers render: stable parts first, the parts that change every turn last.

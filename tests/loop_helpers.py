@@ -8,9 +8,9 @@ from typing import Any
 
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
-from autoresearch.orchestrator import LoopSettings, Orchestrator, Outcome
+from autoresearch.loop.orchestrator import LoopSettings, Orchestrator, Outcome
+from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, Usage
-from autoresearch.stopping import Budgets
 
 TOY_FAMILY = Path(__file__).parent / "toy_family"
 
@@ -61,8 +61,8 @@ class ScriptedProposer(Proposer):
             kind="propose", overrides=item, annotation={"hypothesis": "scripted"}, usage=self.usage
         )
 
-    def tell(self, overrides: dict[str, Any], metric: float | None, feasible: bool) -> None:
-        self.tells.append((overrides, metric, feasible))
+    def tell(self, config: dict[str, Any], metric: float | None, feasible: bool) -> None:
+        self.tells.append((config, metric, feasible))
 
 
 def stop(status: str = "plateau") -> Proposal:

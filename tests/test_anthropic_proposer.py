@@ -23,9 +23,9 @@ from llm_support import (
     user_text,
 )
 
-from autoresearch.pricing import FALLBACK_PRICE, Price
 from autoresearch.proposers.anthropic_api import DEFAULT_MODEL, LONG_GAP_S, AnthropicProposer
 from autoresearch.proposers.base import FatalAPIError, TransientAPIError
+from autoresearch.proposers.pricing import FALLBACK_PRICE, Price
 from autoresearch.proposers.tools import PROPOSE, STOP
 
 

@@ -16,9 +16,9 @@ from autoresearch.audit.verify import verify
 from autoresearch.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.random_search import RandomProposer
-from autoresearch.stopping import Budgets
 
 S = 0.01
 SIGMA = S * math.sqrt(4 / 3)  # four alternating +-S noise values

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 from loop_helpers import copy_toy
 
-from autoresearch.campaign_lock import CampaignLock
 from autoresearch.cli import main
+from autoresearch.loop.campaign_lock import CampaignLock
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ from loop_helpers import copy_toy
 
 from autoresearch.cli import main
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.live import PlainView, RichView
+from autoresearch.loop.live import PlainView, RichView
 from autoresearch.proposers.base import Proposal
 
 

@@ -7,10 +7,10 @@ import pytest
 from loop_helpers import TOY_FAMILY, copy_toy
 
 from autoresearch.cli import main
-from autoresearch.compare_inputs import CompareError, load_arms
-from autoresearch.compare_report import analyse, write_comparison
+from autoresearch.compare.inputs import CompareError, load_arms
+from autoresearch.compare.report import analyse, write_comparison
 from autoresearch.journal import write_json_atomic
-from autoresearch.orchestrator import RECORD_KEYS
+from autoresearch.loop.orchestrator import RECORD_KEYS
 
 NOISE = {"mean": 0.86, "std": 0.01, "k": 5, "measured_at": "2025-01-01T00:00:00+00:00"}
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from autoresearch import compare
+from autoresearch.compare import stats as compare
 
 INF = math.inf
 

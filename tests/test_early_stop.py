@@ -5,14 +5,14 @@ import json
 import pytest
 from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
 
-from autoresearch.audit.inputs import Campaign
+from autoresearch.audit.inputs import AuditedCampaign
 from autoresearch.audit.verify import rank_candidates
-from autoresearch.campaign import CampaignPaths, CampaignState
-from autoresearch.context import build_context
-from autoresearch.early_stop import EarlyStopper
 from autoresearch.family import Family
-from autoresearch.prompting import render_prompt
-from autoresearch.runner import parse_progress
+from autoresearch.loop.campaign import CampaignPaths, CampaignState
+from autoresearch.loop.context import build_context
+from autoresearch.loop.early_stop import EarlyStopper
+from autoresearch.loop.runner import parse_progress
+from autoresearch.proposers.prompting import render_prompt
 
 # Slow to learn and far from the optimum: a curve clearly worse than the finished runs' at step 1.
 HOPELESS = {"LEARNING_RATE": 0.0001, "MOMENTUM": 0.0, "EPOCHS": 1, "BATCH_SIZE": 128}
@@ -69,7 +69,7 @@ def test_a_hopeless_run_is_stopped_early_and_never_counts(tmp_path, pruner):
     assert '"progress"' in "".join(shown.history) and hopeless["run_id"] in "".join(shown.history)
     # The audit never promotes it: it is no candidate.
     family = Family.load(toy)
-    campaign = Campaign(CampaignPaths(tmp_path / "c"), {}, family, records)
+    campaign = AuditedCampaign(CampaignPaths(tmp_path / "c"), {}, family, records)
     assert hopeless["run_id"] not in [c["source"]["run_id"] for c in rank_candidates(campaign, 10)]
     # On --resume the pruner's study is rebuilt from the records' curves.
     study = EarlyStopper(pruner, "minimize", records).study

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from autoresearch.editable import read_region
 from autoresearch.family import Family
-from autoresearch.runner import parse_progress
+from autoresearch.loop.editable import read_region
+from autoresearch.loop.runner import parse_progress
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")

@@ -13,14 +13,14 @@ from loop_helpers import copy_toy
 
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
-from autoresearch.live import PlainView
-from autoresearch.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.live import PlainView
+from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.anthropic_api import AnthropicProposer
 from autoresearch.proposers.base import ProposerContext, projected_cost
 from autoresearch.proposers.enqueued import EnqueuedProposer
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tools import PROPOSE
-from autoresearch.stopping import Budgets
 
 
 def _proposal(epochs: int, hypothesis: str = "More epochs lower the loss.") -> dict:

@@ -7,10 +7,10 @@ import optuna
 import pytest
 from loop_helpers import ScriptedProposer, copy_toy, run_loop
 
-from autoresearch.campaign import CampaignState
-from autoresearch.campaign_check import check_campaign
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
+from autoresearch.loop.campaign import CampaignState
+from autoresearch.loop.campaign_check import check_campaign
 from autoresearch.proposers.base import Proposal, ProposerContext
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tpe import TPEProposer
@@ -103,7 +103,7 @@ def test_the_views_show_every_run_in_flight(toy, tmp_path):
 
     from rich.console import Console
 
-    from autoresearch.live import PlainView, RichView
+    from autoresearch.loop.live import PlainView, RichView
     from autoresearch.proposers.base import Proposal
 
     console = Console(file=io.StringIO(), force_terminal=True, width=200)

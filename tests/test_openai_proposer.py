@@ -22,9 +22,9 @@ from llm_support import (
     user_text,
 )
 
-from autoresearch.pricing import Price
 from autoresearch.proposers.base import FatalAPIError, TransientAPIError
 from autoresearch.proposers.openai_api import DEFAULT_MODEL, OpenAIProposer
+from autoresearch.proposers.pricing import Price
 from autoresearch.proposers.tools import PROPOSE, STOP
 
 PROPOSE_CALL = (PROPOSE, json.dumps(PROPOSAL_INPUT))

@@ -4,7 +4,7 @@ import pytest
 from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop, snapshot
 
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.orchestrator import RECORD_KEYS
+from autoresearch.loop.orchestrator import RECORD_KEYS
 from autoresearch.proposers.base import Proposal, Usage
 
 
@@ -165,8 +165,8 @@ def test_random_arm_summary_is_shown(toy, tmp_path):
         max_iters=4,
     )
     from autoresearch.family import Family
-    from autoresearch.orchestrator import LoopSettings, Orchestrator
-    from autoresearch.stopping import Budgets
+    from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+    from autoresearch.loop.stopping import Budgets
 
     proposer = ScriptedProposer([{"EPOCHS": 11}])
     settings = LoopSettings("scripted", Budgets(max_iters=2), random_arm=tmp_path / "rs")

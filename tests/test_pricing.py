@@ -9,7 +9,8 @@ import uuid
 
 import pytest
 
-from autoresearch.pricing import (
+from autoresearch.proposers.capabilities import MODELS, capabilities
+from autoresearch.proposers.pricing import (
     DEFAULT_PRICES,
     ENV_VAR,
     FALLBACK_PRICE,
@@ -19,7 +20,6 @@ from autoresearch.pricing import (
     load_prices,
     price_of,
 )
-from autoresearch.proposers.capabilities import MODELS, capabilities
 
 
 @pytest.fixture(autouse=True)

@@ -7,7 +7,7 @@ import json
 
 from llm_support import BASELINE_METRIC, REGISTRY, TARGET, make_context
 
-from autoresearch.prompting import (
+from autoresearch.proposers.prompting import (
     BEST,
     CHUNK,
     CURRENT,
@@ -22,7 +22,7 @@ from autoresearch.prompting import (
     render_context,
     render_prompt,
 )
-from autoresearch.prompting import (
+from autoresearch.proposers.prompting import (
     REGISTRY as REGISTRY_HEADING,
 )
 from autoresearch.proposers.tools import PROPOSE, STOP

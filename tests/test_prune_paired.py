@@ -15,12 +15,12 @@ from autoresearch.audit.auditjson import read_audit, write_step
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise
 from autoresearch.audit.prune import Rule, prune
+from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
 from autoresearch.cli import main
 from autoresearch.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.report import write_report
 
 S = 0.01
 SIGMA = S * math.sqrt(4 / 3)  # four alternating +-S noise values

@@ -14,7 +14,7 @@ from test_resume import check_trail, processes_under
 from autoresearch.cli import main
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.repeats import GroupError, is_group, plan_group, repeat_dirs
+from autoresearch.loop.repeats import GroupError, is_group, plan_group, repeat_dirs
 
 LOOP = [sys.executable, "-m", "autoresearch", "loop"]
 

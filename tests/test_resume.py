@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from loop_helpers import ScriptedProposer, copy_toy, run_loop
 
-from autoresearch import orchestrator
 from autoresearch.journal import read_json, read_jsonl
+from autoresearch.loop import orchestrator
 from autoresearch.proposers.tpe import TPEProposer
 
 

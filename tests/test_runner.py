@@ -10,7 +10,7 @@ from loop_helpers import copy_toy, snapshot
 
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
-from autoresearch.runner import parse_final_metric, run_experiment, run_prepare_check, stop_orphaned_run
+from autoresearch.loop.runner import parse_final_metric, run_experiment, run_prepare_check, stop_orphaned_run
 
 HEADER = """# ===== Editable Configuration =====
 X = 1  # a knob

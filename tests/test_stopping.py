@@ -3,11 +3,11 @@ import time
 import pytest
 from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop, stop
 
-from autoresearch.campaign import CampaignState
 from autoresearch.family import Family
+from autoresearch.loop.campaign import CampaignState
+from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, stop_gate
+from autoresearch.loop.verdicts import noise_threshold, plateau, verdict
 from autoresearch.proposers.base import Proposal, Usage
-from autoresearch.stopping import Budgets, closest_trigger, first_trigger, stop_gate
-from autoresearch.verdicts import noise_threshold, plateau, verdict
 
 BAD = Proposal(kind="invalid", error="scripted junk")
 

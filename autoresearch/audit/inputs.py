@@ -7,9 +7,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import CampaignPaths
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
+from autoresearch.loop.campaign import CampaignPaths
 from autoresearch.space import canonical_key
 
 AUDIT_DIR = "audit"
@@ -41,7 +41,7 @@ def seed_noise(family: Family) -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
-class Campaign:
+class AuditedCampaign:
     paths: CampaignPaths
     meta: dict[str, Any]  # campaign.json
     family: Family
@@ -71,7 +71,7 @@ class Campaign:
         return max(feasible, key=lambda r: (sign * r["metric"], -r["iteration"])) if feasible else None
 
 
-def open_campaign(campaign_dir: str | Path) -> Campaign:
+def open_campaign(campaign_dir: str | Path) -> AuditedCampaign:
     paths = CampaignPaths(Path(campaign_dir).resolve())
     if not paths.campaign_json.exists() or not paths.proposals.exists():
         raise AuditError(f"{campaign_dir}: not a campaign directory (no campaign.json or proposals.jsonl)")
@@ -79,4 +79,4 @@ def open_campaign(campaign_dir: str | Path) -> Campaign:
     family_dir = meta.get("family")
     if not family_dir or not Path(family_dir).is_dir():
         raise AuditError(f"{paths.campaign_json}: its family directory {family_dir!r} does not exist")
-    return Campaign(paths, meta, Family.load(family_dir), read_jsonl(paths.proposals))
+    return AuditedCampaign(paths, meta, Family.load(family_dir), read_jsonl(paths.proposals))

@@ -14,7 +14,7 @@ from typing import Any
 
 from autoresearch.audit import stats
 from autoresearch.audit.auditjson import read_audit, set_family_field, write_step
-from autoresearch.audit.inputs import AuditError, Campaign
+from autoresearch.audit.inputs import AuditedCampaign, AuditError
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.executors import Executor
@@ -33,7 +33,7 @@ def measure_noise(
     executor: Executor,
     *,
     k: int = 10,
-    campaign: Campaign | None = None,
+    campaign: AuditedCampaign | None = None,
     out_dir: Path | None = None,
     timeout: float = 3600.0,
 ) -> dict[str, Any]:
@@ -77,7 +77,7 @@ def measure_noise(
     return noise
 
 
-def record_existing_noise(campaign: Campaign) -> dict[str, Any]:
+def record_existing_noise(campaign: AuditedCampaign) -> dict[str, Any]:
     """The audit's noise step when the family already has its seed noise: record, do not re-measure."""
     noise = campaign.family.seed_noise
     if not noise:

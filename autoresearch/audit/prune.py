@@ -30,13 +30,13 @@ from typing import Any
 
 from autoresearch.audit import stats
 from autoresearch.audit.auditjson import read_audit, set_family_field, write_step
-from autoresearch.audit.inputs import AuditError, Campaign, config_id
+from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import assess, is_this_campaign
 from autoresearch.executors import Executor
 from autoresearch.journal import read_json
-from autoresearch.verdicts import reaches_target
+from autoresearch.loop.verdicts import reaches_target
 
 STEP = "prune"  # the paper rule's audit.json key; the log and run directories of every rule
 DECIDED_BY = "prune_decided_by"  # audit.json: the key of the rule that ran last (it decides)
@@ -92,7 +92,7 @@ def _blocked(row: dict[str, Any], full_row: dict[str, Any] | None) -> str | None
 
 
 def leave_one_out(
-    campaign: Campaign,
+    campaign: AuditedCampaign,
     executor: Executor,
     full: dict[str, Any],
     sigma: float,
@@ -172,7 +172,7 @@ def _unit(rule: Rule, noise: dict[str, Any], full: dict[str, Any]) -> dict[str, 
 
 
 def _plan(
-    campaign: Campaign, rule: Rule, names: list[str], n_seeds: int
+    campaign: AuditedCampaign, rule: Rule, names: list[str], n_seeds: int
 ) -> tuple[dict[str, list[int]], list[int]]:
     """Fresh probe seeds per edit, and the re-verification seeds, shared by the rules of one plan group."""
     family = campaign.family
@@ -187,7 +187,7 @@ def _plan(
 
 
 def prune(
-    campaign: Campaign, executor: Executor, *, n_seeds: int | None = None, rule: Rule = Rule()
+    campaign: AuditedCampaign, executor: Executor, *, n_seeds: int | None = None, rule: Rule = Rule()
 ) -> dict[str, Any]:
     """Leave-one-out over the promoted configuration under ``rule``, then re-verification of the
     pruned recipe; the result goes to audit.json[rule.key]."""
@@ -264,13 +264,13 @@ def prune(
     return part
 
 
-def _finish(campaign: Campaign, rule: Rule, part: dict[str, Any]) -> None:
+def _finish(campaign: AuditedCampaign, rule: Rule, part: dict[str, Any]) -> None:
     write_step(campaign.root, rule.key, part)
     write_step(campaign.root, DECIDED_BY, {"key": rule.key, "rule": rule.name})
 
 
 def _attach_distilled(
-    campaign: Campaign, full: dict[str, Any], pruned: dict[str, Any], dropped: list[str], rule: Rule
+    campaign: AuditedCampaign, full: dict[str, Any], pruned: dict[str, Any], dropped: list[str], rule: Rule
 ) -> None:
     """A published pruned recipe is recorded beside the family best, which stays the promoted full
     configuration (the paper's docking case: the distilled recipe clears the gate, but the full one

@@ -24,17 +24,17 @@ from typing import Any
 
 from autoresearch.audit import stats
 from autoresearch.audit.auditjson import write_step
-from autoresearch.audit.inputs import AuditError, Campaign
+from autoresearch.audit.inputs import AuditedCampaign, AuditError
 from autoresearch.audit.trials import Trial, run_trials
-from autoresearch.campaign import BASELINE_PROPOSER, CampaignPaths, CampaignState
 from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import Journal, read_json, write_json_atomic
-from autoresearch.orchestrator import BASELINE_HYPOTHESIS, RECORD_KEYS, run_id_for
+from autoresearch.loop.campaign import BASELINE_PROPOSER, RUN_STATUSES, CampaignPaths, CampaignState
+from autoresearch.loop.orchestrator import BASELINE_HYPOTHESIS, RECORD_KEYS, run_id_for
+from autoresearch.loop.verdicts import run_verdict
 from autoresearch.proposers.base import ProposerContext
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.space import NUMERIC_TYPES
-from autoresearch.verdicts import run_verdict
 
 MATCHED_AXIS = "training_budget"
 PROPOSER = "random"
@@ -46,22 +46,22 @@ def step_name(matched_range: bool) -> str:
     return "random_matched" if matched_range else "random"
 
 
-def default_arm_dir(campaign: Campaign, matched_range: bool) -> Path:
+def default_arm_dir(campaign: AuditedCampaign, matched_range: bool) -> Path:
     return campaign.root.parent / f"{campaign.root.name}-{step_name(matched_range).replace('_', '-')}"
 
 
-def campaign_count(campaign: Campaign) -> int:
+def campaign_count(campaign: AuditedCampaign) -> int:
     """Experiments the campaign ran (successful or failed, the baseline included)."""
-    return sum(r["status"] in ("ran", "failed") for r in campaign.records)
+    return sum(r["status"] in RUN_STATUSES for r in campaign.records)
 
 
-def matched_ranges(campaign: Campaign) -> dict[str, dict[str, Any]]:
+def matched_ranges(campaign: AuditedCampaign) -> dict[str, dict[str, Any]]:
     """random_range of each training-budget parameter: the span of values the campaign ran."""
     family, ranges = campaign.family, {}
     for name, param in family.space.params.items():
         if param.axis != MATCHED_AXIS:
             continue
-        used = [r["config"][name] for r in campaign.records if r["status"] in ("ran", "failed")]
+        used = [r["config"][name] for r in campaign.records if r["status"] in RUN_STATUSES]
         if param.type in NUMERIC_TYPES:
             ranges[name] = {"low": min(used), "high": max(used)}
         else:
@@ -73,7 +73,7 @@ def matched_ranges(campaign: Campaign) -> dict[str, dict[str, Any]]:
     return ranges
 
 
-def arm_space(campaign: Campaign, space: str | None) -> str:
+def arm_space(campaign: AuditedCampaign, space: str | None) -> str:
     """``space``, else the one the campaign's proposer searched when it chose one, else random-range."""
     return space or campaign.meta["settings"].get("space") or DEFAULT_SPACE
 
@@ -165,7 +165,7 @@ def _summary_run(record: dict[str, Any] | None) -> dict[str, Any] | None:
 
 
 def run_random_arm(
-    campaign: Campaign,
+    campaign: AuditedCampaign,
     executor: Executor,
     *,
     count: int | None = None,
@@ -247,7 +247,7 @@ def run_random_arm(
 
 
 def summarize(
-    campaign: Campaign,
+    campaign: AuditedCampaign,
     arm_dir: Path,
     state: CampaignState,
     matched_range: bool,
@@ -264,7 +264,7 @@ def summarize(
     part: dict[str, Any] = {
         "status": "done",
         "dir": str(arm_dir),
-        "count": sum(r["status"] in ("ran", "failed") for r in state.records),
+        "count": sum(r["status"] in RUN_STATUSES for r in state.records),
         "seed": seed,
         "space": space,
         "matched_range": ranges if matched_range else None,

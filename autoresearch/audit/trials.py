@@ -18,7 +18,7 @@ from autoresearch.audit.progress import TrialProgress
 from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import Journal
-from autoresearch.runner import RunResult, load_result, run_experiment, stop_orphaned_run
+from autoresearch.loop.runner import RunResult, load_result, run_experiment, stop_orphaned_run
 
 
 @dataclass(frozen=True)

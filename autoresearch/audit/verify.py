@@ -19,7 +19,7 @@ from typing import Any
 
 from autoresearch.audit import stats
 from autoresearch.audit.auditjson import set_family_field, write_step
-from autoresearch.audit.inputs import Campaign, changed_params, config_id, seed_noise
+from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.executors import Executor
@@ -28,7 +28,7 @@ from autoresearch.family import Family
 STEP = "verify"
 
 
-def rank_candidates(campaign: Campaign, top: int) -> list[dict[str, Any]]:
+def rank_candidates(campaign: AuditedCampaign, top: int) -> list[dict[str, Any]]:
     """The ``top`` best distinct feasible configurations other than the baseline, each with the run
     that produced it (its best run, were a configuration run more than once)."""
     family, sign = campaign.family, campaign.family.direction
@@ -117,13 +117,13 @@ def repository_root(family: Family) -> Path:
     return family.path.resolve().parent
 
 
-def campaign_ref(campaign: Campaign) -> str:
+def campaign_ref(campaign: AuditedCampaign) -> str:
     """The campaign's path as family.json records it: relative to the repository root, so a
     committed family.json holds no path of the machine that ran the audit."""
     return Path(os.path.relpath(campaign.root.resolve(), repository_root(campaign.family))).as_posix()
 
 
-def is_this_campaign(source: Any, campaign: Campaign) -> bool:
+def is_this_campaign(source: Any, campaign: AuditedCampaign) -> bool:
     """Whether a family best's ``source`` names ``campaign`` (relative, or absolute as older audits wrote)."""
     if not isinstance(source, dict) or not isinstance(source.get("campaign"), str):
         return False
@@ -133,7 +133,9 @@ def is_this_campaign(source: Any, campaign: Campaign) -> bool:
     return os.path.normpath(recorded) == os.path.normpath(campaign.root.resolve())
 
 
-def _replaces_family_best(family: Family, candidate: dict[str, Any], campaign: Campaign) -> tuple[bool, str]:
+def _replaces_family_best(
+    family: Family, candidate: dict[str, Any], campaign: AuditedCampaign
+) -> tuple[bool, str]:
     """A promotion replaces the family's best unless another campaign's best is more reproducible."""
     current = family.registry.get("best")
     if not current:
@@ -150,7 +152,9 @@ def _replaces_family_best(family: Family, candidate: dict[str, Any], campaign: C
     return False, f"the family's best (from {source}) has the better bound ({sign * old:.4g})"
 
 
-def verify(campaign: Campaign, executor: Executor, *, top: int = 3, n_seeds: int = 10) -> dict[str, Any]:
+def verify(
+    campaign: AuditedCampaign, executor: Executor, *, top: int = 3, n_seeds: int = 10
+) -> dict[str, Any]:
     """Reseed the top candidates, gate them, promote the most reproducible passing one."""
     if top < 1:
         raise ValueError(f"--top must be >= 1 (got {top})")

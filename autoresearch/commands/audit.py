@@ -5,18 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from autoresearch.audit.commandline import positive_int, run_command
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise, record_existing_noise
 from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
+from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
-from autoresearch.campaign_lock import CampaignLock
+from autoresearch.commands.common import positive_int, run_command
 from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import print_verify
 from autoresearch.executors import add_executor_arguments
-from autoresearch.report import write_report
+from autoresearch.loop.campaign_lock import CampaignLock
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

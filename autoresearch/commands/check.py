@@ -6,9 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from autoresearch import repeats
-from autoresearch.campaign_check import check_campaign
-from autoresearch.campaign_lock import holder, not_a_directory
+from autoresearch.loop import repeats
+from autoresearch.loop.campaign_check import check_campaign
+from autoresearch.loop.campaign_lock import holder, not_a_directory
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -1,4 +1,4 @@
-"""``autoresearch compare``: score arms over their repeated campaigns (autoresearch/compare_report.py)."""
+"""``autoresearch compare``: score arms over their repeated campaigns (autoresearch/compare/report.py)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
-from autoresearch.audit.commandline import positive_int
-from autoresearch.compare_inputs import CompareError, load_arms
-from autoresearch.compare_report import write_comparison
+from autoresearch.commands.common import positive_int
+from autoresearch.compare.inputs import CompareError, load_arms
+from autoresearch.compare.report import write_comparison
 from autoresearch.journal import JournalError
 
 

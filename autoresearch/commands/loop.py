@@ -11,22 +11,22 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from autoresearch import repeats
-from autoresearch.campaign import CampaignError, CampaignPaths
-from autoresearch.campaign_lock import CampaignLock
-from autoresearch.context import shown_registry
-from autoresearch.early_stop import EARLY_STOP
 from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json, write_json_atomic
-from autoresearch.live import make_view
-from autoresearch.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop import repeats
+from autoresearch.loop.campaign import CampaignError, CampaignPaths
+from autoresearch.loop.campaign_lock import CampaignLock
+from autoresearch.loop.context import shown_registry
+from autoresearch.loop.early_stop import EARLY_STOP
+from autoresearch.loop.live import make_view
+from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers import DEFAULT_SPACE, KEY_FREE, PROPOSERS, make_proposer
 from autoresearch.proposers.base import Proposer
 from autoresearch.proposers.enqueued import EnqueuedProposer, full_queue, read_queue
 from autoresearch.proposers.llm_options import LLM_DEFAULTS, add_llm_arguments, dry_run, llm_kwargs
 from autoresearch.space import SPACES
-from autoresearch.stopping import Budgets
 
 # Settings a campaign keeps in campaign.json; on --resume, flags given again override them.
 DEFAULTS: dict[str, Any] = {
@@ -319,7 +319,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_repeats(args: argparse.Namespace) -> int:
-    """--repeats N: N campaigns of one arm in sub-directories of --campaign (autoresearch/repeats.py)."""
+    """--repeats N: N campaigns of one arm in sub-directories of --campaign (autoresearch/loop/repeats.py)."""
     now = datetime.now(timezone.utc)
     session = {"started": now.isoformat(timespec="seconds"), "argv": sys.argv[1:]}
     try:

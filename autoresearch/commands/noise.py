@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from autoresearch.audit.commandline import positive_int, run_command
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import default_noise_dir, measure_noise
-from autoresearch.campaign_lock import CampaignLock
+from autoresearch.commands.common import positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
+from autoresearch.loop.campaign_lock import CampaignLock
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -6,12 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from autoresearch.audit.commandline import positive_int, run_command
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.random_arm import default_arm_dir, run_random_arm
-from autoresearch.campaign_lock import CampaignLock
+from autoresearch.commands.common import positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
+from autoresearch.loop.campaign_lock import CampaignLock
 from autoresearch.space import SPACES
 
 

@@ -7,11 +7,11 @@ import sys
 from pathlib import Path
 
 from autoresearch.audit.inputs import AuditError
-from autoresearch.campaign_check import trail_problems
-from autoresearch.campaign_lock import not_a_directory
+from autoresearch.audit.report import write_report
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
-from autoresearch.report import write_report
+from autoresearch.loop.campaign_check import trail_problems
+from autoresearch.loop.campaign_lock import not_a_directory
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

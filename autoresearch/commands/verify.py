@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from autoresearch.audit.commandline import positive_int, run_command
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.verify import verify
-from autoresearch.campaign_lock import CampaignLock
+from autoresearch.commands.common import positive_int, run_command
 from autoresearch.executors import add_executor_arguments
+from autoresearch.loop.campaign_lock import CampaignLock
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -1,7 +1,7 @@
 """A proposer backed by Claude through the Anthropic Messages API.
 
 One request per turn, with exactly the two tools and one tool use allowed, laid out for prompt
-caching (:mod:`autoresearch.prompting`): ``cache_control`` breakpoints on the stable prefix and on
+caching (:mod:`autoresearch.proposers.prompting`): ``cache_control`` breakpoints on the stable prefix and on
 the last history block. Transport faults raise :class:`TransientAPIError` for the orchestrator to
 retry (the SDK's own retries are off); authentication and spend-limit errors raise
 :class:`FatalAPIError`; any other API error, a refusal, a truncated reply or a malformed call is an
@@ -18,10 +18,10 @@ from typing import Any
 import anthropic
 import httpx2
 
-from autoresearch.pricing import Price, checked_counts, cost_usd, load_prices, max_charge
-from autoresearch.prompting import SYSTEM_PROMPT, render_prompt
 from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, Usage
 from autoresearch.proposers.capabilities import capabilities
+from autoresearch.proposers.pricing import Price, checked_counts, cost_usd, load_prices, max_charge
+from autoresearch.proposers.prompting import SYSTEM_PROMPT, render_prompt
 from autoresearch.proposers.retry import classify, error_text
 from autoresearch.proposers.tools import anthropic_tools, parse_tool_call, safe_text
 

@@ -117,8 +117,9 @@ class Proposer(ABC):
     @abstractmethod
     def propose(self, context: ProposerContext) -> Proposal: ...
 
-    def tell(self, overrides: dict[str, Any], metric: float | None, feasible: bool) -> None:  # noqa: B027
-        """Outcome of a proposal that ran (metric None when it failed). Stateless proposers ignore it."""
+    def tell(self, config: dict[str, Any], metric: float | None, feasible: bool) -> None:  # noqa: B027
+        """Outcome of an experiment that ran: its full configuration, its metric (None when it failed
+        or was stopped early) and feasibility. Stateless proposers ignore it."""
 
 
 def projected_cost(proposer: Proposer, context: ProposerContext) -> float:

@@ -3,7 +3,7 @@ effort, and output/context limits. It replaces the old prefix lists of model qui
 
 A dated snapshot (``claude-sonnet-4-5-20250929``, ``gpt-5.5-2026-04-23``) takes its alias's row. An
 unknown model gets :data:`UNKNOWN`: no forced tool choice (the system prompt demands the call), no
-effort field, and a conservative price (see :mod:`autoresearch.pricing`).
+effort field, and a conservative price (see :mod:`autoresearch.proposers.pricing`).
 """
 
 from __future__ import annotations

@@ -109,8 +109,8 @@ def campaign_estimate(proposer: Any, context: Any, iterations: int) -> dict[str,
     """Estimated USD of ``iterations`` calls: the history grows by one run per call; with caching,
     all but the newest run and the tail are cache reads (Anthropic: the newest run is a 5-minute
     write); ``typical`` assumes TYPICAL_OUTPUT_TOKENS per call, ``worst`` max_tokens and no cache hit."""
-    from autoresearch.pricing import billed_price
-    from autoresearch.prompting import render_prompt, run_line
+    from autoresearch.proposers.pricing import billed_price
+    from autoresearch.proposers.prompting import render_prompt, run_line
 
     prompt = render_prompt(context)
     body = proposer.request(context)
@@ -155,11 +155,11 @@ def dry_run(meta: dict[str, Any], out: TextIO | None = None) -> int:
     import anthropic
     import openai
 
-    from autoresearch.campaign import CampaignState
-    from autoresearch.context import build_context, shown_registry
     from autoresearch.family import resolve_family
+    from autoresearch.loop.campaign import CampaignState
+    from autoresearch.loop.context import build_context, shown_registry
+    from autoresearch.loop.stopping import Budgets, closest_trigger
     from autoresearch.proposers import make_proposer
-    from autoresearch.stopping import Budgets, closest_trigger
 
     settings, name = meta["settings"], meta["proposer"]
     if name not in ("anthropic", "openai"):

@@ -25,8 +25,6 @@ from typing import Any
 
 import openai
 
-from autoresearch.pricing import Price, checked_counts, cost_usd, load_prices, max_charge, price_of
-from autoresearch.prompting import SYSTEM_PROMPT, render_context
 from autoresearch.proposers.anthropic_api import (
     CHARS_PER_TOKEN,
     DEFAULT_MAX_TOKENS,
@@ -35,6 +33,8 @@ from autoresearch.proposers.anthropic_api import (
 )
 from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, Usage
 from autoresearch.proposers.capabilities import capabilities
+from autoresearch.proposers.pricing import Price, checked_counts, cost_usd, load_prices, max_charge, price_of
+from autoresearch.proposers.prompting import SYSTEM_PROMPT, render_context
 from autoresearch.proposers.retry import classify, error_text
 from autoresearch.proposers.tools import PROPOSE, STOP, openai_tools, parse_tool_call, safe_text
 

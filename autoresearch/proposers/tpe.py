@@ -66,9 +66,9 @@ class TPEProposer(Proposer):
         self.distributions = {name: _distribution(p) for name, p in self.space.params.items()}
         self.outcomes: list[tuple[dict[str, Any], float | None, bool]] = []
 
-    def tell(self, overrides: dict[str, Any], metric: float | None, feasible: bool) -> None:
-        """``overrides`` is the full configuration that ran; ``metric`` is None for a failed run."""
-        self.outcomes.append((self.family_space.validate_full(overrides), metric, feasible))
+    def tell(self, config: dict[str, Any], metric: float | None, feasible: bool) -> None:
+        """``metric`` is None for a failed run."""
+        self.outcomes.append((self.family_space.validate_full(config), metric, feasible))
 
     @property
     def trials(self) -> list[FrozenTrial]:

@@ -16,8 +16,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import RUN_STATUSES, STATUSES, TERMINAL, CampaignPaths
 from autoresearch.family import Family, FamilyError
+from autoresearch.loop.campaign import RUN_STATUSES, STATUSES, TERMINAL, CampaignPaths
 
 
 @dataclass(frozen=True)

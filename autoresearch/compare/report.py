@@ -2,8 +2,8 @@
 figures (best so far against experiments and against wall-clock, and the performance profile).
 
 Only feasible runs count toward the best so far and the target (the ``feasible`` of each record, i.e.
-the family's ``feasibility_field``). The statistics are :mod:`autoresearch.compare`'s; the arms come
-from :mod:`autoresearch.compare_inputs`.
+the family's ``feasibility_field``). The statistics are :mod:`autoresearch.compare.stats`'s; the arms come
+from :mod:`autoresearch.compare.inputs`.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
 
-from autoresearch import compare
-from autoresearch.compare_inputs import Arm, CompareError, common_family, noise_reference
-from autoresearch.report import LOG_SPAN
+from autoresearch.audit.report import LOG_SPAN
+from autoresearch.compare import stats as compare
+from autoresearch.compare.inputs import CompareError, RepeatedArm, common_family, noise_reference
 
 BUDGET_TRIGGERS = ("max_iters", "max_runs", "wall_clock", "max_cost")
 TIME_POINTS = 200
@@ -33,14 +33,14 @@ class Analysis:
     direction: int
     budget: int
     noise: dict[str, Any] | None
-    arms: list[Arm]
+    arms: list[RepeatedArm]
     summaries: dict[str, dict[str, Any]]
     improvement: dict[tuple[str, str], tuple[float, float, float]]
     notes: list[str]
 
 
 def analyse(
-    arms: list[Arm],
+    arms: list[RepeatedArm],
     budget: int | None = None,
     sigma: float | None = None,
     seed: int = 0,
@@ -373,7 +373,7 @@ def _jsonable(x: Any) -> Any:
 
 
 def write_comparison(
-    arms: list[Arm],
+    arms: list[RepeatedArm],
     out_dir: Path,
     *,
     budget: int | None = None,

@@ -31,9 +31,9 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
-from autoresearch import editable
 from autoresearch.family import Family
 from autoresearch.journal import read_json, repair_torn_tail, write_json_atomic
+from autoresearch.loop import editable
 
 FINAL_METRIC_PREFIX = "FINAL_METRIC:"
 PROGRESS_PREFIX = "PROGRESS:"

@@ -1,4 +1,5 @@
-"""What the proposer is shown each turn (paper Sec. 3.3), in blind mode stripped of every answer-bearing number."""
+"""The ProposerContext built from a campaign's state each turn (paper Sec. 3.3); in blind mode it is
+stripped of every answer-bearing number. How an LLM sees it laid out: proposers/prompting.py."""
 
 from __future__ import annotations
 
@@ -7,9 +8,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import CampaignPaths, CampaignState
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
+from autoresearch.loop.campaign import CampaignPaths, CampaignState
 from autoresearch.proposers.base import ProposerContext
 
 # The registry fields a blind proposer may see: the problem's invariant facts and its search

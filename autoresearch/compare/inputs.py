@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from autoresearch.campaign import TERMINAL, CampaignPaths
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.repeats import repeat_dirs
+from autoresearch.loop.campaign import RUN_STATUSES, TERMINAL, CampaignPaths
+from autoresearch.loop.repeats import repeat_dirs
 
 FAMILY_KEYS = ("name", "metric", "direction", "target", "feasibility_field")
 
@@ -47,7 +47,7 @@ class Repeat:
 
 
 @dataclass(frozen=True)
-class Arm:
+class RepeatedArm:
     name: str
     repeats: list[Repeat]
     unstarted: list[Path]  # repeats of a group that have not run yet: left out
@@ -75,7 +75,7 @@ def read_repeat(path: Path) -> Repeat:
         if not needed.is_file():
             raise CompareError(f"{path}: not a campaign directory: {needed.name} is missing")
     records = read_jsonl(paths.proposals)
-    runs = [r for r in records if r["status"] in ("ran", "failed")]
+    runs = [r for r in records if r["status"] in RUN_STATUSES]
     last = records[-1] if records else None
     return Repeat(
         dir=path,
@@ -88,7 +88,7 @@ def read_repeat(path: Path) -> Repeat:
     )
 
 
-def load_arms(specs: list[tuple[str, list[Path]]]) -> list[Arm]:
+def load_arms(specs: list[tuple[str, list[Path]]]) -> list[RepeatedArm]:
     """Arms from (name, directories): each directory a campaign or a group of repeats."""
     names = [name for name, _ in specs]
     duplicated = sorted({n for n in names if names.count(n) > 1})
@@ -103,11 +103,11 @@ def load_arms(specs: list[tuple[str, list[Path]]]) -> list[Arm]:
             unstarted += waiting
         if not found:
             raise CompareError(f"arm {name}: none of its repeats has started ({', '.join(map(str, dirs))})")
-        arms.append(Arm(name, [read_repeat(d) for d in found], unstarted))
+        arms.append(RepeatedArm(name, [read_repeat(d) for d in found], unstarted))
     return arms
 
 
-def common_family(arms: list[Arm]) -> dict[str, Any]:
+def common_family(arms: list[RepeatedArm]) -> dict[str, Any]:
     """The registry fields every campaign must share to be compared."""
     first = arms[0].repeats[0]
     family = {k: first.registry.get(k) for k in FAMILY_KEYS}
@@ -122,7 +122,7 @@ def common_family(arms: list[Arm]) -> dict[str, Any]:
     return family
 
 
-def noise_reference(arms: list[Arm], sigma: float | None) -> dict[str, Any] | None:
+def noise_reference(arms: list[RepeatedArm], sigma: float | None) -> dict[str, Any] | None:
     """The seed noise the comparison is denominated in: {sigma, reference, note}, or None.
 
     From the campaigns' registry copies (the latest measurement when they differ), or ``sigma``; the

@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from autoresearch.campaign import CampaignState
-from autoresearch.verdicts import plateau
+from autoresearch.loop.campaign import CampaignState
+from autoresearch.loop.verdicts import plateau
 
 GATE_MIN_EXPERIMENTS = 6
 GATE_MIN_AXES = 4

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import CampaignPaths
 from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import JournalError, read_json, read_jsonl, write_json_atomic
+from autoresearch.loop.campaign import CampaignPaths
 
 GROUP_FILE = "repeats.json"
 REPEAT_PREFIX = "repeat-"

@@ -7,11 +7,11 @@ import sys
 from collections.abc import Callable
 
 from autoresearch.audit.inputs import AuditError
-from autoresearch.campaign import CampaignError
 from autoresearch.executors import Executor, make_executor
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
-from autoresearch.runner import interruptible_runs
+from autoresearch.loop.campaign import CampaignError
+from autoresearch.loop.runner import interruptible_runs
 
 
 def positive_int(text: str) -> int:

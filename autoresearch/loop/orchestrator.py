@@ -3,7 +3,7 @@
 Each iteration: check the stopping triggers, ask the proposer (the first experiment is the
 family's baseline, with no proposer call), validate and deduplicate the proposal, run it,
 judge it, record it. Exactly one record per iteration goes to proposals.jsonl, whatever
-happened; the loop state is a fold over those records (:mod:`autoresearch.campaign`).
+happened; the loop state is a fold over those records (:mod:`autoresearch.loop.campaign`).
 
 Runs in flight (``workers`` > 1): the main thread proposes, validates and records; each run is
 supervised by a thread of its own (or a Ray task) and reports back through a queue. An iteration
@@ -33,22 +33,20 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import (
+from autoresearch.executors import Executor
+from autoresearch.family import Family
+from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
+from autoresearch.loop.campaign import (
     BASELINE_PROPOSER,
     RUN_STATUSES,
     CampaignError,
     CampaignPaths,
     CampaignState,
 )
-from autoresearch.context import build_context, summarize_random_arm
-from autoresearch.early_stop import EarlyStopper
-from autoresearch.executors import Executor
-from autoresearch.family import Family
-from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
-from autoresearch.live import View
-from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer, projected_cost
-from autoresearch.proposers.retry import RetryBudgetSpent, call_with_retries
-from autoresearch.runner import (
+from autoresearch.loop.context import build_context, summarize_random_arm
+from autoresearch.loop.early_stop import EarlyStopper
+from autoresearch.loop.live import View
+from autoresearch.loop.runner import (
     RunResult,
     check_record,
     load_result,
@@ -56,9 +54,11 @@ from autoresearch.runner import (
     run_prepare_check,
     stop_orphaned_run,
 )
+from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, spend_trigger, stop_gate
+from autoresearch.loop.verdicts import run_verdict
+from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer, projected_cost
+from autoresearch.proposers.retry import RetryBudgetSpent, call_with_retries
 from autoresearch.space import ValidationError, canonical_key
-from autoresearch.stopping import Budgets, closest_trigger, first_trigger, spend_trigger, stop_gate
-from autoresearch.verdicts import run_verdict
 
 # Every proposals.jsonl record has exactly these keys, in this order.
 RECORD_KEYS = (
@@ -100,7 +100,7 @@ class LoopSettings:
     timeout_per_run: float = 3600.0
     random_arm: Path | None = None
     workers: int = 1  # experiments in flight at once
-    early_stop: str = "none"  # none, median or asha (autoresearch.early_stop)
+    early_stop: str = "none"  # none, median or asha (autoresearch.loop.early_stop)
     executor: Executor | None = None  # None: runs supervised by threads of this process
 
 

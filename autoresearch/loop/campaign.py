@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.family import Family
+from autoresearch.loop.verdicts import is_better, reaches_target
 from autoresearch.space import canonical_key
-from autoresearch.verdicts import is_better, reaches_target
 
 STATUSES = ("ran", "failed", "pruned", "invalid", "stop_accepted", "stop_rejected", "stopped")
 RUN_STATUSES = ("ran", "failed", "pruned")  # the statuses of an iteration whose experiment started

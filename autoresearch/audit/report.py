@@ -20,11 +20,12 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from autoresearch.audit.auditjson import read_audit
-from autoresearch.audit.inputs import Campaign, open_campaign
+from autoresearch.audit.inputs import AuditedCampaign, open_campaign
 from autoresearch.audit.prune import DECIDED_BY, RULES
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.runner import family_env
+from autoresearch.loop.campaign import RUN_STATUSES
+from autoresearch.loop.runner import family_env
 
 COLORS = {"agent": "#2ca02c", "random": "#1f77b4", "random_matched": "#6baed6", "other": "#ff7f0e"}
 HOOK_TIMEOUT_S = 600.0
@@ -32,7 +33,7 @@ LOG_SPAN = 10.0  # the search figure goes log-scale once the metric spans a deca
 
 
 @dataclass(frozen=True)
-class Arm:
+class PlottedArm:
     label: str
     color: str
     records: list[dict[str, Any]]
@@ -42,13 +43,15 @@ class Arm:
         return [r for r in self.records if r["status"] == "ran"]
 
 
-def _load_arm(directory: Path, label: str | None, color: str) -> Arm:
+def _load_arm(directory: Path, label: str | None, color: str) -> PlottedArm:
     meta_path = directory / "campaign.json"
     proposer = read_json(meta_path).get("proposer", "?") if meta_path.exists() else "?"
-    return Arm(label or f"{proposer} ({directory.name})", color, read_jsonl(directory / "proposals.jsonl"))
+    return PlottedArm(
+        label or f"{proposer} ({directory.name})", color, read_jsonl(directory / "proposals.jsonl")
+    )
 
 
-def random_arms(audit: dict[str, Any]) -> list[Arm]:
+def random_arms(audit: dict[str, Any]) -> list[PlottedArm]:
     """The random arms the campaign's audit ran."""
     arms = []
     for step, label in (("random", "random search"), ("random_matched", "random search, matched range")):
@@ -69,7 +72,7 @@ def _mean_sd(mean: float | None, sd: float | None, n: int | None) -> str:
 # ----- figures ---------------------------------------------------------------------------
 
 
-def search_figure(arms: list[Arm], family: Family, noise: dict[str, Any] | None, out: Path) -> None:
+def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] | None, out: Path) -> None:
     """Per-experiment metric (filled: feasible, hollow: infeasible) and each arm's running best."""
     fig = Figure(figsize=(8, 4.5))
     ax = fig.add_subplot()
@@ -153,7 +156,7 @@ def recipe_figure(records: list[dict[str, Any]], family: Family, out: Path) -> N
     fig.savefig(out, dpi=110)
 
 
-def family_hook(campaign: Campaign, verify: dict[str, Any] | None, out: Path) -> str | None:
+def family_hook(campaign: AuditedCampaign, verify: dict[str, Any] | None, out: Path) -> str | None:
     """Run the family's report.py on the promoted configuration's saved policy; None if it ran."""
     family = campaign.family
     if not (family.path / "report.py").is_file():
@@ -193,7 +196,7 @@ def _best_of(arm_part: dict[str, Any]) -> str:
     return f"{_fmt(any_best['metric'])} (none feasible)" if any_best else "no successful run"
 
 
-def audit_table(campaign: Campaign, audit: dict[str, Any], other_arms: list[Arm]) -> list[str]:
+def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: list[PlottedArm]) -> list[str]:
     """The paper's Tables 2 and 3: one row per arm, the reseeded headline last."""
     family = campaign.family
     rows = ["| Arm | " + family.metric + " | Strict-feasible | vs. seed noise |", "|---|---|---|---|"]
@@ -255,7 +258,7 @@ def _changes(config: dict[str, Any], family: Family) -> str:
     )
 
 
-def verify_section(campaign: Campaign, verify: dict[str, Any]) -> list[str]:
+def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[str]:
     family = campaign.family
     if not verify:
         return ["Not run (`autoresearch verify --campaign DIR`)."]
@@ -311,7 +314,7 @@ def _unit_text(prune: dict[str, Any]) -> str:
     return f"σ = {_fmt(unit['sigma'], 3)}, {where}"
 
 
-def prune_section(campaign: Campaign, prune: dict[str, Any]) -> list[str]:
+def prune_section(campaign: AuditedCampaign, prune: dict[str, Any]) -> list[str]:
     if not prune:
         return ["Not run (`autoresearch prune --campaign DIR`)."]
     if prune.get("status") == "skipped":
@@ -358,7 +361,7 @@ def prune_section(campaign: Campaign, prune: dict[str, Any]) -> list[str]:
     return lines
 
 
-def pruning_sections(campaign: Campaign, audit: dict[str, Any]) -> list[str]:
+def pruning_sections(campaign: AuditedCampaign, audit: dict[str, Any]) -> list[str]:
     """One section per leave-one-out rule that ran; with more than one, which decided and a
     side-by-side table of their decisions."""
     ran = [rule for rule in RULES if audit.get(rule.key)]
@@ -398,14 +401,14 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
     audit = read_audit(campaign.root)
     out_dir = Path(out_dir or campaign.root)
     out_dir.mkdir(parents=True, exist_ok=True)
-    agent = Arm(f"agent ({campaign.meta.get('proposer', '?')})", COLORS["agent"], campaign.records)
+    agent = PlottedArm(f"agent ({campaign.meta.get('proposer', '?')})", COLORS["agent"], campaign.records)
     extra = [_load_arm(Path(d), None, COLORS["other"]) for d in arms]
     noise = audit.get("noise") or family.seed_noise
     search_figure([agent, *random_arms(audit), *extra], family, noise, out_dir / "search.png")
     recipe_figure(campaign.records, family, out_dir / "recipe.png")
     hook_note = family_hook(campaign, audit.get("verify"), out_dir / "trajectories.png")
     better = "lower" if family.direction < 0 else "higher"
-    n_runs = sum(r["status"] in ("ran", "failed") for r in campaign.records)
+    n_runs = sum(r["status"] in RUN_STATUSES for r in campaign.records)
     lines = [
         f"# Audit report: {campaign.root.name}",
         "",

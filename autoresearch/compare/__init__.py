@@ -1,0 +1,1 @@
+"""Comparing search arms over repeated campaigns: statistics, inputs, report."""
