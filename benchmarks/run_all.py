@@ -3,10 +3,10 @@
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/run_all.py [--quick] [--tuned] [--out PATH]
 
 Reuses the measurements of bench_envs.py, bench_experts_cbf.py and bench_audit.py; times each
-family's train.py through autoresearch.loop.runner, the loop's own path (a patched copy in a
+family's train.py through autoresearch.runner, the loop's own path (a patched copy in a
 temporary run directory, run as a subprocess); measures the loop's overhead per iteration on a
-temporary copy of the toy family; and reads TPE vs random from the committed campaign logs in
-results/ (nothing is run for that row). A few minutes; ``--quick`` shortens every measurement
+temporary copy of the toy family; and reads the key-free arms' experiments to target from the
+committed groups of repeats in results/ (nothing is run for those rows). A few minutes; ``--quick`` shortens every measurement
 (a smoke test, not numbers to quote). 'Tuned' is the audited best in each family.json: its wall
 time is read from the committed reseeded runs, or with ``--tuned`` timed now (docking's takes
 minutes on a CPU). Progress goes to stderr, the table to stdout.
@@ -15,6 +15,7 @@ minutes on a CPU). Progress goes to stderr, the table to stdout.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import platform
 import sys
@@ -31,19 +32,22 @@ from bench_audit import audit_walls, make_campaign
 from bench_envs import NATIVE_ENVS, SYNC_ENVS, bench_single, bench_vector
 from bench_experts_cbf import cbf_measure, docking_expert_run, rendezvous_expert_time
 
+from autoresearch.compare.inputs import common_family, load_arms, noise_reference
+from autoresearch.compare.stats import best_so_far, experiments_to_target, median_experiments_to_target
 from autoresearch.family import Family
-from autoresearch.journal import read_jsonl
-from autoresearch.loop.campaign import CampaignPaths, CampaignState
+from autoresearch.journal import read_json, read_jsonl
 from autoresearch.loop.runner import run_experiment
+from autoresearch.proposers import DEFAULT_SPACE
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")
 ENV_IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v0")
 NATIVE = NATIVE_ENVS[0]
 BASELINE_TIMEOUT_S, TUNED_TIMEOUT_S = 300.0, 1800.0
+# Committed groups of repeats (loop --repeats) per family: (directory, prefix of the arm groups).
+COMPARE_GROUPS = {"rendezvous": ("results/compare-rendezvous", "rdv"), "docking": ("results/compare", "dock")}
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
-Runs = list[tuple[float | None, bool]]  # (metric, or None for a failed run; feasible) per experiment
 
 
 @dataclass(frozen=True)
@@ -209,86 +213,56 @@ def audit_row(sleep: float, where: Path) -> Row:
     )
 
 
-@dataclass(frozen=True)
-class Reach:
-    best: float | None  # the random arm's best; None when it has no successful run
-    random_at: int | None  # 1-based experiment at which each arm's best-so-far first reached it
-    tpe_at: int | None  # None: never within its budget
-    fell_back: tuple[str, ...]  # arms with no feasible run, judged on all their successful runs
+def group_space(group: Path) -> str:
+    """The space a group of repeats searched (before --space: its proposer's default)."""
+    meta = read_json(group / "repeats.json")
+    return meta["settings"].get("space") or DEFAULT_SPACE.get(meta["proposer"], "bounds")
 
 
-def counted(runs: Runs) -> tuple[list[tuple[int, float]], bool]:
-    """(1-based experiment, metric) of the runs an arm's best is taken over, and whether it fell
-    back: its feasible successful runs, or every successful run when none is feasible."""
-    feasible_only = any(metric is not None and feasible for metric, feasible in runs)
-    pairs = [
-        (i, metric)
-        for i, (metric, feasible) in enumerate(runs, start=1)
-        if metric is not None and (feasible or not feasible_only)
-    ]
-    return pairs, not feasible_only
-
-
-def experiments_to_reach(tpe: Runs, random: Runs, direction: int) -> Reach:
-    """When each arm first matched the random arm's best (direction: +1 maximise, -1 minimise)."""
-    tpe_pairs, tpe_fell = counted(tpe)
-    random_pairs, random_fell = counted(random)
-    fell_back = tuple(arm for arm, fell in (("TPE", tpe_fell), ("random", random_fell)) if fell)
-    if not random_pairs:
-        return Reach(None, None, None, fell_back)
-    best = max((m for _, m in random_pairs), key=lambda m: direction * m)
-
-    def first(pairs: list[tuple[int, float]]) -> int | None:
-        return next((i for i, m in pairs if direction * m >= direction * best), None)
-
-    return Reach(best, first(random_pairs), first(tpe_pairs), fell_back)
-
-
-def arm_runs(family: Family, campaign: Path) -> tuple[Runs, bool]:
-    """(metric or None, feasible) of every experiment of a campaign in iteration order, and
-    whether the campaign has finished. Feasible per the family's ``feasibility_field``."""
-    state = CampaignState.from_records(family, read_jsonl(CampaignPaths(campaign).proposals))
-    runs = [
-        (r["metric"], family.is_feasible(r["record"])) if r["status"] == "ran" else (None, False)
-        for r in state.records
-        if r["status"] in ("ran", "failed")
-    ]
-    return runs, state.finished
-
-
-def tpe_rows() -> list[Row]:
+def compare_rows() -> list[Row]:
+    """Experiments to target per key-free arm, from the committed groups of repeats, computed by
+    autoresearch.compare (best-so-far over feasible runs, right-censored at the budget)."""
     rows = []
-    for name in FAMILIES:
-        what = f"TPE vs random, {name}: experiments to reach random's best"
-        arms = {arm: ROOT / "results" / name / arm for arm in ("tpe", "tpe-random")}
-        if not all(CampaignPaths(d).proposals.exists() for d in arms.values()):
-            rows.append((what, "not run", "", f"needs results/{name}/{{tpe,tpe-random}}/proposals.jsonl"))
+    for name, (where, prefix) in COMPARE_GROUPS.items():
+        groups = sorted(g for g in (ROOT / where).glob(f"{prefix}-*") if (g / "repeats.json").is_file())
+        what = f"key-free arms, {name}: experiments to target (median over repeats)"
+        if not groups:
+            rows.append((what, "not run", "", f"needs {where}/{prefix}-<arm>/ groups (loop --repeats)"))
             continue
-        family = Family.load(ROOT / "families" / name)
-        (tpe, tpe_done), (random, random_done) = (arm_runs(family, d) for d in arms.values())
-        reach = experiments_to_reach(tpe, random, family.direction)
-        if reach.best is None:
-            rows.append((what, "n/a", "", "the random arm has no successful run"))
-            continue
-        field = family.feasibility_field
-        basis = f" over its {field} runs" if field and "random" not in reach.fell_back else ""
-        notes = [f"random best {family.metric} {reach.best:.4g}{basis}"]
-        if reach.fell_back:
-            which = " and ".join(reach.fell_back) + (" arms" if len(reach.fell_back) > 1 else " arm")
-            notes.append(f"no feasible run in the {which}: every successful run counted")
-        notes += [
-            f"{arm} campaign in progress"
-            for arm, done in (("TPE", tpe_done), ("random", random_done))
-            if not done
-        ]
-        rows.append(
-            (
-                what,
-                f"TPE {reach.tpe_at or 'never'}, random {reach.random_at}",
-                f"of {len(tpe)} / {len(random)} experiments",
-                "; ".join(notes),
+        arms = load_arms([(g.name.removeprefix(prefix + "-"), [g]) for g in groups])
+        registry = common_family(arms)
+        direction = 1 if registry["direction"] == "maximize" else -1
+        budget = min(r.n for arm in arms for r in arm.repeats)
+        noise = noise_reference(arms, None)
+        targets = [("target", registry["target"])]
+        if noise:  # the audit's gate: 2 sigma of seed noise better than the baseline's seed mean
+            targets.append(("2-sigma gate", noise["reference"] + direction * 2 * noise["sigma"]))
+        spaces = {arm.name: group_space(g) for arm, g in zip(arms, groups, strict=True)}
+        for label, target in targets:
+            cells = []
+            for arm in arms:
+                matrix = np.array(
+                    [best_so_far(r.metrics, r.feasible, direction, budget) for r in arm.repeats]
+                )
+                hits = experiments_to_target(matrix, target, direction)
+                median_hit = median_experiments_to_target(hits)
+                reached_by = sum(h is not None for h in hits)
+                text = "never" if math.isinf(median_hit) else f"{median_hit:g}"
+                cells.append(f"{arm.name} {text} ({reached_by}/{len(hits)})")
+            same = len(set(spaces.values())) == 1
+            space_note = (
+                f"all over {next(iter(spaces.values()))}"
+                if same
+                else "spaces differ: " + ", ".join(f"{a} {s}" for a, s in spaces.items())
             )
-        )
+            rows.append(
+                (
+                    f"{what}, {label} {target:.4g}",
+                    "; ".join(cells),
+                    f"budget {budget}, {min(len(a.repeats) for a in arms)}+ repeats per arm",
+                    f"{space_note}; (k/n): repeats that reached it; {where}",
+                )
+            )
     return rows
 
 
@@ -331,8 +305,8 @@ def main() -> int:
         rows.append(loop_row(settings.loop_iterations, Path(tempfile.mkdtemp(dir=tmp))))
         progress("audit, 1 and 2 workers")
         rows.append(audit_row(settings.audit_sleep_s, tmp))
-        progress("TPE vs random, from results/")
-        rows += tpe_rows()
+        progress("key-free arms, from results/")
+        rows += compare_rows()
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"
     print(text, end="")

@@ -1,4 +1,4 @@
-"""benchmarks/run_all.py's TPE-vs-random row, on hand-made arms and records (nothing is measured)."""
+"""benchmarks/run_all.py's key-free rows (experiments to target per arm), on hand-made groups."""
 
 from __future__ import annotations
 
@@ -8,63 +8,54 @@ from pathlib import Path
 
 from loop_helpers import TOY_FAMILY
 
-from autoresearch.family import Family
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from run_all import arm_runs, experiments_to_reach
-
-MINIMIZE, MAXIMIZE = -1, +1
+import run_all
 
 
-def test_feasible_runs_set_the_bar_and_failed_runs_still_count_as_experiments():
-    random = [(5.0, True), (1.0, False), (None, False), (3.0, True), (4.0, True)]
-    tpe = [(5.0, True), (None, False), (2.0, False), (3.5, True), (2.9, True)]
-    reach = experiments_to_reach(tpe, random, MINIMIZE)
-    # The infeasible 1.0 is not random's best; TPE's infeasible 2.0 does not reach 3.0.
-    assert (reach.best, reach.random_at, reach.tpe_at, reach.fell_back) == (3.0, 4, 5, ())
+def make_group(root: Path, proposer: str, space: str | None, repeats: list[list[float | None]]) -> None:
+    """A group of repeats whose campaigns ran these metrics (None: a failed run), toy family (minimize)."""
+    registry = {**json.loads((TOY_FAMILY / "family.json").read_text()), "target": 0.5}
+    registry["seed_noise"] = {"mean": 1.0, "std": 0.1}
+    settings = {"space": space} if space else {}
+    root.mkdir(parents=True)
+    (root / "repeats.json").write_text(json.dumps({"proposer": proposer, "settings": settings}))
+    for i, metrics in enumerate(repeats):
+        campaign = root / f"repeat-{i:02d}"
+        campaign.mkdir()
+        (campaign / "campaign.json").write_text(json.dumps({"proposer": proposer, "settings": settings}))
+        (campaign / "family.json").write_text(json.dumps(registry))
+        records = [
+            {"status": "failed", "metric": None, "feasible": None, "elapsed_s": it, "trigger": None}
+            if m is None
+            else {"status": "ran", "metric": m, "feasible": True, "elapsed_s": it, "trigger": None}
+            for it, m in enumerate(metrics, start=1)
+        ]
+        records.append({"status": "stopped", "trigger": "max_iters", "metric": None, "elapsed_s": 9.0})
+        (campaign / "proposals.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
 
 
-def test_tpe_that_never_reaches_and_the_maximize_direction():
-    random = [(0.2, True), (0.9, True)]
-    assert experiments_to_reach([(0.5, True), (0.8, True)], random, MAXIMIZE).tpe_at is None
-    assert experiments_to_reach([(0.95, True)], random, MAXIMIZE).tpe_at == 1
-    assert experiments_to_reach([(0.95, True)], random, MINIMIZE).best == 0.2
+def test_experiments_to_target_per_arm_with_the_space_each_searched(tmp_path, monkeypatch):
+    where = tmp_path / "results" / "cmp"
+    make_group(where / "toy-gp", "gp", "random-range", [[1.0, 0.7, 0.4], [1.0, None, 0.8], [1.0, 0.45, 0.3]])
+    make_group(where / "toy-random", "random", None, [[1.0, 0.9, 0.85], [1.0, 0.6, 0.9], [1.0, 0.9, 0.9]])
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    monkeypatch.setattr(
+        run_all, "COMPARE_GROUPS", {"toy": ("results/cmp", "toy"), "none": ("results/x", "x")}
+    )
+    rows = run_all.compare_rows()
+    target, gate, missing = rows
+    # Target 0.5: gp's repeats reach it at experiments 3 and 2 and never: median 3; random never.
+    assert target[0].endswith("target 0.5") and target[1] == "gp 3 (2/3); random never (0/3)"
+    # The gate (1.0 - 2 x 0.1 = 0.8): gp at 2, 3, 2; random at never, 2, never.
+    assert gate[1] == "gp 2 (3/3); random never (1/3)"
+    assert "all over random-range" in target[3]  # random's default space is random-range
+    assert missing[1] == "not run"
 
 
-def test_an_arm_without_a_feasible_run_falls_back_to_all_its_successful_runs():
-    random = [(5.0, False), (2.0, False), (None, False)]
-    tpe = [(3.0, False), (1.5, True)]
-    reach = experiments_to_reach(tpe, random, MINIMIZE)
-    assert (reach.best, reach.random_at, reach.tpe_at, reach.fell_back) == (2.0, 2, 2, ("random",))
-    empty = experiments_to_reach(tpe, [(None, False)], MINIMIZE)
-    assert empty.best is None and empty.tpe_at is None
-
-
-def test_arm_runs_reads_proposals_with_the_feasibility_field(tmp_path):
-    family = Family.load(TOY_FAMILY)
-    config = family.baseline_config
-
-    def record(iteration, status, metric=None, feasible=None, run_id=None):
-        return {
-            "iteration": iteration,
-            "proposer": "baseline" if iteration == 1 else "random",
-            "status": status,
-            "config": {**config, "EPOCHS": 10 + iteration},
-            "overrides": {},
-            "run_id": run_id,
-            "metric": metric,
-            "feasible": True,  # the loop's own flag; arm_runs re-reads the family's field
-            "record": None if metric is None else {"loss": metric, "feasible": feasible},
-        }
-
-    records = [
-        record(1, "ran", 0.9, True, "it0001"),
-        record(2, "invalid"),
-        record(3, "failed", run_id="it0003"),
-        record(4, "ran", 0.4, False, "it0004"),
-    ]
-    log = tmp_path / "proposals.jsonl"
-    log.write_text("".join(json.dumps(r) + "\n" for r in records))
-    assert arm_runs(family, tmp_path) == ([(0.9, True), (None, False), (0.4, False)], False)
-    log.write_text(log.read_text() + json.dumps(record(5, "stopped")) + "\n")
-    assert arm_runs(family, tmp_path)[1] is True
+def test_arms_over_different_spaces_are_flagged(tmp_path, monkeypatch):
+    where = tmp_path / "results" / "cmp"
+    make_group(where / "toy-tpe", "tpe", None, [[1.0, 0.4]])
+    make_group(where / "toy-random", "random", None, [[1.0, 0.9]])
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    monkeypatch.setattr(run_all, "COMPARE_GROUPS", {"toy": ("results/cmp", "toy")})
+    assert "spaces differ: random random-range, tpe bounds" in run_all.compare_rows()[0][3]
