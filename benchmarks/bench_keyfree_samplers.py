@@ -90,15 +90,7 @@ def run_arm(name: str, registry: dict[str, Any], family: str, seed: int, trials:
     history, best, bests, ask_s = [], math.inf, [], 0.0
     for iteration in range(1, trials + 1):
         if iteration > 1:
-            context = ProposerContext(
-                iteration=iteration,
-                warnings=(),
-                program="",
-                registry=registry,
-                random_arm_summary=None,
-                history=tuple({"config": c} for c in history),
-                current_values=registry["baseline"]["config"],
-            )
+            context = ProposerContext.of_configs(iteration, registry, history, registry["baseline"]["config"])
             start = time.perf_counter()
             config = proposer.propose(context).overrides
             ask_s += time.perf_counter() - start

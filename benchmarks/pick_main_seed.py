@@ -79,15 +79,7 @@ def main() -> None:
         proposer.tell(baseline, registry["baseline"]["metric"], True)  # as the loop tells it
         history, priced = [baseline], []
         for iteration in range(2, args.draws + 2):
-            context = ProposerContext(
-                iteration=iteration,
-                warnings=(),
-                program="",
-                registry=registry,
-                random_arm_summary=None,
-                history=tuple({"config": c} for c in history),
-                current_values=baseline,
-            )
+            context = ProposerContext.of_configs(iteration, registry, history, baseline)
             config = proposer.propose(context).overrides
             proposer.tell(config, None, False)  # start-up draws do not depend on the outcomes
             history.append(config)

@@ -10,7 +10,7 @@ from autoresearch.cli import main
 from autoresearch.compare.inputs import CompareError, load_arms
 from autoresearch.compare.report import analyse, write_comparison
 from autoresearch.journal import write_json_atomic
-from autoresearch.loop.orchestrator import RECORD_KEYS
+from autoresearch.loop.campaign import new_record
 
 NOISE = {"mean": 0.86, "std": 0.01, "k": 5, "measured_at": "2025-01-01T00:00:00+00:00"}
 
@@ -35,9 +35,7 @@ def fake_campaign(root: Path, metrics: list, *, infeasible=(), step_s: float = 1
         if i == 0:
             records.append({"status": "invalid", "reason": "refused", "elapsed_s": elapsed})
     records.append({"status": "stopped", "trigger": "max_iters", "elapsed_s": elapsed})
-    lines = [
-        json.dumps({**dict.fromkeys(RECORD_KEYS), **r, "iteration": i}) for i, r in enumerate(records, 1)
-    ]
+    lines = [json.dumps(new_record(**{**r, "iteration": i})) for i, r in enumerate(records, 1)]
     (root / "proposals.jsonl").write_text("\n".join(lines) + "\n")
     return root
 

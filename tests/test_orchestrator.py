@@ -4,7 +4,7 @@ import pytest
 from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop, snapshot
 
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.orchestrator import RECORD_KEYS
+from autoresearch.loop.campaign import RECORD_KEYS
 from autoresearch.proposers.base import Proposal, Usage
 
 

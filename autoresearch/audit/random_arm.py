@@ -18,7 +18,6 @@ paper's open limitation: the agent trained longer than the random sweep happened
 from __future__ import annotations
 
 import json
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +28,15 @@ from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import Journal, read_json, write_json_atomic
-from autoresearch.loop.campaign import BASELINE_PROPOSER, RUN_STATUSES, CampaignPaths, CampaignState
-from autoresearch.loop.orchestrator import BASELINE_HYPOTHESIS, RECORD_KEYS, run_id_for
+from autoresearch.loop.campaign import (
+    BASELINE_PROPOSER,
+    RUN_STATUSES,
+    CampaignPaths,
+    CampaignState,
+    new_record,
+    now,
+)
+from autoresearch.loop.orchestrator import BASELINE_HYPOTHESIS, run_id_for
 from autoresearch.loop.verdicts import run_verdict
 from autoresearch.proposers.base import ProposerContext
 from autoresearch.proposers.random_search import RandomProposer
@@ -96,15 +102,7 @@ def draw_configs(family: Family, registry: dict[str, Any], seed: int, count: int
     baseline = family.baseline_config
     configs = [baseline]
     for iteration in range(2, count + 1):
-        context = ProposerContext(
-            iteration=iteration,
-            warnings=(),
-            program="",
-            registry=registry,
-            random_arm_summary=None,
-            history=tuple({"config": c} for c in configs),
-            current_values=baseline,
-        )
+        context = ProposerContext.of_configs(iteration, registry, configs, baseline)
         proposal = proposer.propose(context)
         if proposal.kind != "propose":  # the space ran out of unseen configurations
             break
@@ -112,19 +110,14 @@ def draw_configs(family: Family, registry: dict[str, Any], seed: int, count: int
     return configs
 
 
-def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
-
-
 def _record(family: Family, state: CampaignState, iteration: int, config: dict, row: dict) -> dict[str, Any]:
     """One proposals.jsonl record, as the loop writes it for a run."""
     baseline = iteration == 1
     annotation = {"hypothesis": BASELINE_HYPOTHESIS if baseline else "random sample (Eq. randsearch)"}
     overrides = {} if baseline else config
-    record = dict.fromkeys(RECORD_KEYS)
-    record.update(
+    record = new_record(
         iteration=iteration,
-        time=_now(),
+        time=now(),
         proposer=BASELINE_PROPOSER if baseline else PROPOSER,
         proposal={"kind": "propose", "overrides": overrides, "annotation": annotation, "error": None},
         overrides=overrides,
@@ -225,11 +218,10 @@ def run_random_arm(
         journal.append(record)
         state.apply(record)
     if not state.finished:
-        stop = dict.fromkeys(RECORD_KEYS)
         reason = f"{len(configs)} experiments: the budget of {campaign.root.name}"
-        stop.update(
+        stop = new_record(
             iteration=state.iterations + 1,
-            time=_now(),
+            time=now(),
             proposer=PROPOSER,
             status="stopped",
             reason=reason,

@@ -13,6 +13,7 @@ from the file belongs to a run in flight (its ``runs/<run_id>/intent.json``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +25,51 @@ STATUSES = ("ran", "failed", "pruned", "invalid", "stop_accepted", "stop_rejecte
 RUN_STATUSES = ("ran", "failed", "pruned")  # the statuses of an iteration whose experiment started
 TERMINAL = ("stop_accepted", "stopped")
 BASELINE_PROPOSER = "baseline"
+
+
+# Every proposals.jsonl record has exactly these keys, in this order.
+RECORD_KEYS = (
+    "iteration",
+    "time",
+    "proposer",
+    "status",
+    "reason",
+    "proposal",
+    "overrides",
+    "config",
+    "run_id",
+    "seed",
+    "metric",
+    "feasible",
+    "record",
+    "verdict",
+    "best_so_far",
+    "cost_usd",
+    "input_tokens",
+    "output_tokens",
+    "cumulative_cost_usd",
+    "elapsed_s",
+    "trigger",
+    "run_status",
+    "wall_seconds",
+    "returncode",
+    "interrupted_run_ids",
+    "progress",
+)
+
+
+def now() -> str:
+    """A record's time stamp: UTC, to the second."""
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def new_record(**fields: Any) -> dict[str, Any]:
+    """One proposals.jsonl record: every key of RECORD_KEYS, in order, unset ones None. The only
+    way records are made (the loop, the audit's random arm, tests), so every writer agrees."""
+    unknown = set(fields) - set(RECORD_KEYS)
+    if unknown:
+        raise ValueError(f"not proposals.jsonl record keys: {sorted(unknown)}")
+    return {**dict.fromkeys(RECORD_KEYS), **fields}
 
 
 class CampaignError(RuntimeError):

@@ -29,7 +29,6 @@ import queue
 import threading
 import time
 from dataclasses import dataclass, field, replace
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +41,8 @@ from autoresearch.loop.campaign import (
     CampaignError,
     CampaignPaths,
     CampaignState,
+    new_record,
+    now,
 )
 from autoresearch.loop.context import build_context, summarize_random_arm
 from autoresearch.loop.early_stop import EarlyStopper
@@ -60,35 +61,6 @@ from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer, proje
 from autoresearch.proposers.retry import RetryBudgetSpent, call_with_retries
 from autoresearch.space import ValidationError, canonical_key
 
-# Every proposals.jsonl record has exactly these keys, in this order.
-RECORD_KEYS = (
-    "iteration",
-    "time",
-    "proposer",
-    "status",
-    "reason",
-    "proposal",
-    "overrides",
-    "config",
-    "run_id",
-    "seed",
-    "metric",
-    "feasible",
-    "record",
-    "verdict",
-    "best_so_far",
-    "cost_usd",
-    "input_tokens",
-    "output_tokens",
-    "cumulative_cost_usd",
-    "elapsed_s",
-    "trigger",
-    "run_status",
-    "wall_seconds",
-    "returncode",
-    "interrupted_run_ids",
-    "progress",
-)
 BASELINE_HYPOTHESIS = "the family's baseline configuration (the shared first experiment of every campaign)"
 
 
@@ -115,10 +87,6 @@ class Outcome:
     iterations: int
     n_runs_ok: int
     best: dict[str, Any] | None
-
-
-def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def _jsonable(value: Any) -> Any:
@@ -244,7 +212,7 @@ class Orchestrator:
 
     def _mark_interrupted(self, intent: dict[str, Any], why: str) -> None:
         write_json_atomic(
-            self.paths.run_dir(intent["run_id"]) / "interrupted.json", {"time": _now(), "reason": why}
+            self.paths.run_dir(intent["run_id"]) / "interrupted.json", {"time": now(), "reason": why}
         )
 
     def _recover(self) -> list[dict[str, Any]]:
@@ -595,14 +563,14 @@ class Orchestrator:
         self._sync_best()
 
     def _record(self, iteration: int, proposer: str, **fields: Any) -> dict[str, Any]:
-        record = dict.fromkeys(RECORD_KEYS)
-        record.update(iteration=iteration, proposer=proposer, best_so_far=self.state.best_metric, **fields)
-        return record
+        return new_record(
+            iteration=iteration, proposer=proposer, best_so_far=self.state.best_metric, **fields
+        )
 
     def _commit(self, record: dict[str, Any]) -> None:
         """Append one iteration's record (durably) and fold it into the state."""
         state = self.state
-        record["time"] = _now()
+        record["time"] = now()
         record["cost_usd"] = record["cost_usd"] or 0.0
         record["input_tokens"] = record["input_tokens"] or 0
         record["output_tokens"] = record["output_tokens"] or 0

@@ -88,6 +88,21 @@ class ProposerContext:
     blind: bool = False
     running: tuple[dict[str, Any], ...] = ()
 
+    @classmethod
+    def of_configs(
+        cls, iteration: int, registry: dict[str, Any], configs: list[dict[str, Any]], current: dict[str, Any]
+    ) -> ProposerContext:
+        """The context a key-free proposer needs outside a campaign: the configurations run so far."""
+        return cls(
+            iteration=iteration,
+            warnings=(),
+            program="",
+            registry=registry,
+            random_arm_summary=None,
+            history=tuple({"config": c} for c in configs),
+            current_values=current,
+        )
+
 
 class TransientAPIError(Exception):
     """A transport fault worth retrying (429, 529, 5xx, timeout, dropped connection).
