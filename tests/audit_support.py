@@ -9,7 +9,7 @@ from pathlib import Path
 from loop_helpers import TOY_FAMILY, ScriptedProposer
 
 from autoresearch.family import Family
-from autoresearch.journal import write_json_atomic
+from autoresearch.loop.campaign import CampaignMeta
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.base import Proposer
@@ -35,13 +35,9 @@ def run_campaign(
 ) -> Path:
     """A campaign directory as ``autoresearch loop`` writes it (campaign.json included)."""
     root.mkdir(parents=True)
-    meta = {
-        "family": str(family.path),
-        "family_name": family.name,
-        "proposer": proposer.name,
-        "settings": {"timeout_per_run": timeout, "seed": 0, "max_iters": iterations},
-    }
-    write_json_atomic(root / "campaign.json", meta)
+    CampaignMeta.new(
+        family, proposer.name, {"timeout_per_run": timeout, "seed": 0, "max_iters": iterations}
+    ).write(root)
     budgets = Budgets(max_iters=iterations, plateau_window=10**6)
     Orchestrator(family, proposer, root, LoopSettings(proposer.name, budgets, timeout_per_run=timeout)).run()
     return root

@@ -49,7 +49,7 @@ def test_random_arm_searches_the_campaign_space_unless_told(tmp_path):
     bounds = run_random_arm(open_campaign(root), LocalExecutor(2), count=6)
     assert (
         bounds["space"] == "bounds"
-        and read_json(tmp_path / "campaign-random" / "campaign.json")["space"] == "bounds"
+        and read_json(tmp_path / "campaign-random" / "campaign.json")["settings"]["space"] == "bounds"
     )
     assert max(epochs_drawn(tmp_path / "campaign-random")) > 3
     narrow = run_random_arm(
@@ -60,7 +60,7 @@ def test_random_arm_searches_the_campaign_space_unless_told(tmp_path):
         run_random_arm(open_campaign(root), SERIAL, count=6, space="bounds", out=tmp_path / "rr")
     # An arm written before --space existed (no "space" in its campaign.json) resumes as random-range.
     arm_meta = read_json(tmp_path / "rr" / "campaign.json")
-    del arm_meta["space"]
+    del arm_meta["settings"]["space"]
     (tmp_path / "rr" / "campaign.json").write_text(json.dumps(arm_meta))
     again = run_random_arm(open_campaign(root), SERIAL, count=6, space="random-range", out=tmp_path / "rr")
     assert again["best_any"] == narrow["best_any"]

@@ -9,6 +9,8 @@ from loop_helpers import copy_toy
 
 from autoresearch.cli import main
 from autoresearch.commands.loop import DEFAULTS, build_loop
+from autoresearch.family import Family
+from autoresearch.loop.campaign import CampaignMeta
 
 
 @pytest.fixture
@@ -77,17 +79,8 @@ def test_dry_run_for_a_local_server(toy, tmp_path, monkeypatch, capsys):
 def test_llm_flags_reach_the_proposer_and_are_kept(toy, tmp_path, monkeypatch):
     monkeypatch.setenv("OPENAI_API_KEY", "sk-test")
     campaign = tmp_path / "c"
-    meta = {
-        "family": str(toy),
-        "proposer": "openai",
-        "settings": {
-            **DEFAULTS,
-            "reasoning_effort": "none",
-            "max_tokens": 1000,
-            "profile": "cloud",
-        },
-    }
-    _, proposer, _ = build_loop(meta)
+    settings = {**DEFAULTS, "reasoning_effort": "none", "max_tokens": 1000, "profile": "cloud"}
+    _, proposer, _ = build_loop(CampaignMeta.new(Family.load(toy), "openai", settings))
     assert proposer.extra == {"max_completion_tokens": 1000, "reasoning_effort": "none"}
     assert not campaign.exists()
 

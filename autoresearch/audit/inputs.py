@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.family import Family
-from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.campaign import CampaignPaths
+from autoresearch.journal import read_jsonl
+from autoresearch.loop.campaign import CampaignError, CampaignMeta, CampaignPaths
 from autoresearch.space import canonical_key
 
 AUDIT_DIR = "audit"
@@ -43,7 +43,7 @@ def seed_noise(family: Family) -> dict[str, Any]:
 @dataclass(frozen=True)
 class AuditedCampaign:
     paths: CampaignPaths
-    meta: dict[str, Any]  # campaign.json
+    meta: CampaignMeta  # campaign.json
     family: Family
     records: list[dict[str, Any]]  # proposals.jsonl
 
@@ -57,7 +57,7 @@ class AuditedCampaign:
     @property
     def timeout(self) -> float:
         """The campaign's per-experiment budget: every audit run gets the same."""
-        return float(self.meta["settings"]["timeout_per_run"])
+        return float(self.meta.settings["timeout_per_run"])
 
     @property
     def ran(self) -> list[dict[str, Any]]:
@@ -75,8 +75,10 @@ def open_campaign(campaign_dir: str | Path) -> AuditedCampaign:
     paths = CampaignPaths(Path(campaign_dir).resolve())
     if not paths.campaign_json.exists() or not paths.proposals.exists():
         raise AuditError(f"{campaign_dir}: not a campaign directory (no campaign.json or proposals.jsonl)")
-    meta = read_json(paths.campaign_json)
-    family_dir = meta.get("family")
-    if not family_dir or not Path(family_dir).is_dir():
-        raise AuditError(f"{paths.campaign_json}: its family directory {family_dir!r} does not exist")
-    return AuditedCampaign(paths, meta, Family.load(family_dir), read_jsonl(paths.proposals))
+    try:
+        meta = CampaignMeta.read(paths.root)
+    except CampaignError as err:
+        raise AuditError(str(err)) from None
+    if not Path(meta.family).is_dir():
+        raise AuditError(f"{paths.campaign_json}: its family directory {meta.family!r} does not exist")
+    return AuditedCampaign(paths, meta, Family.load(meta.family), read_jsonl(paths.proposals))

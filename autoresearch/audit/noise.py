@@ -19,6 +19,7 @@ from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.executors import Executor
 from autoresearch.family import Family
+from autoresearch.loop.campaign import portable_path
 
 STEP = "noise"
 
@@ -47,7 +48,9 @@ def measure_noise(
         root, used = (out_dir or default_noise_dir(family)), {family.default_seed}
     seeds = fresh_seeds(used, k)
     if campaign is not None:
-        write_step(campaign.root, STEP, {"status": "running", "seeds": seeds, "runs_dir": str(root)})
+        write_step(
+            campaign.root, STEP, {"status": "running", "seeds": seeds, "runs_dir": portable_path(root)}
+        )
     baseline = family.baseline_config
     trials = [Trial(f"noise-s{seed}", baseline, seed) for seed in seeds]
     rows = run_trials(family, trials, executor, root / "noise.jsonl", root, timeout)
@@ -68,7 +71,7 @@ def measure_noise(
         "n_feasible": sum(bool(r["feasible"]) for r in ok),
         "metric": family.metric,
         "measured_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "runs_dir": str(Path(root).resolve()),
+        "runs_dir": portable_path(root),
         "failed": failed,
     }
     set_family_field(family.path, "seed_noise", noise)

@@ -27,14 +27,16 @@ from autoresearch.audit.inputs import AuditedCampaign, AuditError
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.executors import Executor
 from autoresearch.family import Family
-from autoresearch.journal import Journal, read_json, write_json_atomic
+from autoresearch.journal import Journal
 from autoresearch.loop.campaign import (
     BASELINE_PROPOSER,
     RUN_STATUSES,
+    CampaignMeta,
     CampaignPaths,
     CampaignState,
     new_record,
     now,
+    portable_path,
 )
 from autoresearch.loop.orchestrator import BASELINE_HYPOTHESIS, run_id_for
 from autoresearch.loop.verdicts import run_verdict
@@ -81,7 +83,7 @@ def matched_ranges(campaign: AuditedCampaign) -> dict[str, dict[str, Any]]:
 
 def arm_space(campaign: AuditedCampaign, space: str | None) -> str:
     """``space``, else the one the campaign's proposer searched when it chose one, else random-range."""
-    return space or campaign.meta["settings"].get("space") or DEFAULT_SPACE
+    return space or campaign.meta.settings.get("space") or DEFAULT_SPACE
 
 
 def searched_registry(registry: dict[str, Any], space: str, ranges: dict[str, Any] | None) -> dict[str, Any]:
@@ -176,29 +178,25 @@ def run_random_arm(
     ranges = matched_ranges(campaign) if matched_range else None
     registry = searched_registry(family.registry, space, ranges)
     paths = CampaignPaths((out or default_arm_dir(campaign, matched_range)).resolve())
-    meta = {
-        "family": str(family.path),
-        "family_name": family.name,
-        "proposer": PROPOSER,
-        "settings": {
-            "timeout_per_run": campaign.timeout,
-            "seed": seed,
-            "count": count,
-            "budget_from": str(campaign.root),
-            "matched_range": ranges,
-        },
+    settings = {
+        "timeout_per_run": campaign.timeout,
+        "seed": seed,
+        "count": count,
+        "budget_from": portable_path(campaign.root),
+        "matched_range": ranges,
         "space": space,
     }
     if paths.campaign_json.exists():  # resuming: only the very same arm
-        saved = read_json(paths.campaign_json)
-        saved.setdefault("space", DEFAULT_SPACE)  # arms written before the choice existed
-        if saved != meta:
+        saved = CampaignMeta.read(paths.root)
+        saved_settings = {"space": DEFAULT_SPACE, **saved.settings}  # arms written before the choice existed
+        if (saved.family_name, saved.proposer, saved_settings) != (family.name, PROPOSER, settings):
             raise AuditError(
                 f"{paths.root} holds a random arm with other settings; choose another --out or remove it"
             )
+        saved.resumed(family, saved_settings).write(paths.root)
     else:
         paths.root.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(paths.campaign_json, meta)
+        CampaignMeta.new(family, PROPOSER, settings).write(paths.root)
     configs = draw_configs(family, registry, seed, count)
     trials = [Trial(run_id_for(i), config, family.default_seed) for i, config in enumerate(configs, start=1)]
     rows = run_trials(
@@ -255,7 +253,7 @@ def summarize(
     agent = campaign.single_seed_best()
     part: dict[str, Any] = {
         "status": "done",
-        "dir": str(arm_dir),
+        "dir": portable_path(arm_dir),
         "count": sum(r["status"] in RUN_STATUSES for r in state.records),
         "seed": seed,
         "space": space,

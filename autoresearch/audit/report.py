@@ -401,7 +401,7 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
     audit = read_audit(campaign.root)
     out_dir = Path(out_dir or campaign.root)
     out_dir.mkdir(parents=True, exist_ok=True)
-    agent = PlottedArm(f"agent ({campaign.meta.get('proposer', '?')})", COLORS["agent"], campaign.records)
+    agent = PlottedArm(f"agent ({campaign.meta.proposer})", COLORS["agent"], campaign.records)
     extra = [_load_arm(Path(d), None, COLORS["other"]) for d in arms]
     noise = audit.get("noise") or family.seed_noise
     search_figure([agent, *random_arms(audit), *extra], family, noise, out_dir / "search.png")
@@ -414,7 +414,7 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
         "",
         f"Family **{family.name}** ({family.path}); metric `{family.metric}` ({better} is better); "
         f"target {family.target}; feasibility field `{family.feasibility_field}`. "
-        f"Campaign proposer: {campaign.meta.get('proposer', '?')}, {n_runs} experiments. "
+        f"Campaign proposer: {campaign.meta.proposer}, {n_runs} experiments. "
         "How to read this report: docs/audit.md.",
         "",
         "## Audit table",

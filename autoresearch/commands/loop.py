@@ -13,9 +13,9 @@ from typing import Any
 
 from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
 from autoresearch.family import Family, FamilyError, resolve_family
-from autoresearch.journal import JournalError, read_json, write_json_atomic
+from autoresearch.journal import JournalError, read_json
 from autoresearch.loop import repeats
-from autoresearch.loop.campaign import CampaignError, CampaignPaths
+from autoresearch.loop.campaign import CampaignError, CampaignMeta, CampaignPaths, portable_path, session
 from autoresearch.loop.campaign_lock import CampaignLock
 from autoresearch.loop.context import shown_registry
 from autoresearch.loop.early_stop import EARLY_STOP
@@ -172,64 +172,51 @@ def _settings(args: argparse.Namespace, saved: dict[str, Any]) -> dict[str, Any]
     given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
     settings = {**DEFAULTS, **saved, **given}
     if settings["random_arm"] is not None:
-        settings["random_arm"] = str(Path(settings["random_arm"]).resolve())
+        settings["random_arm"] = portable_path(settings["random_arm"])
     return settings
 
 
-def _plan(args: argparse.Namespace) -> tuple[Path, dict[str, Any]]:
-    """(campaign dir, campaign.json content) for a new or resumed campaign."""
-    now = datetime.now(timezone.utc)
-    session = {"started": now.isoformat(timespec="seconds"), "argv": sys.argv[1:]}
+def _plan(args: argparse.Namespace) -> tuple[Path, CampaignMeta]:
+    """(campaign dir, its campaign.json) for a new or resumed campaign."""
     if args.resume:
         if not args.campaign:
             raise UsageError("--resume needs --campaign DIR")
         root = Path(args.campaign)
         if not CampaignPaths(root).campaign_json.exists():
             raise UsageError(f"{root}: no campaign.json; not a campaign directory")
-        meta = read_json(CampaignPaths(root).campaign_json)
-        if args.proposer and args.proposer != meta["proposer"]:
-            raise UsageError(f"this campaign's proposer is {meta['proposer']}; a campaign cannot change it")
-        family = resolve_family(args.family or meta["family"])
-        if family.name != meta["family_name"]:
-            raise UsageError(f"this campaign is of family {meta['family_name']!r}, not {family.name!r}")
-        meta.update(family=str(family.path), settings=_settings(args, meta["settings"]))
-        meta["sessions"] = [*meta.get("sessions", []), session]
-        return root, meta
+        meta = CampaignMeta.read(root)
+        if args.proposer and args.proposer != meta.proposer:
+            raise UsageError(f"this campaign's proposer is {meta.proposer}; a campaign cannot change it")
+        family = resolve_family(args.family or meta.family)
+        return root, meta.resumed(family, _settings(args, meta.settings))
     if not args.family:
         raise UsageError("--family is required (a name under families/ or a directory)")
     family = resolve_family(args.family)
     proposer = args.proposer or _default_proposer()
-    root = Path(args.campaign or f"runs/{family.name}-{proposer}-{now.astimezone():%Y%m%d-%H%M%S}")
+    stamp = datetime.now(timezone.utc).astimezone()
+    root = Path(args.campaign or f"runs/{family.name}-{proposer}-{stamp:%Y%m%d-%H%M%S}")
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise UsageError(f"{root} already exists; continue it with --resume --campaign {root}")
-    meta = {
-        "family": str(family.path),
-        "family_name": family.name,
-        "proposer": proposer,
-        "settings": _settings(args, {}),
-        "created": now.isoformat(timespec="seconds"),
-        "sessions": [session],
-    }
-    return root, meta
+    return root, CampaignMeta.new(family, proposer, _settings(args, {}))
 
 
 def _on_sigterm(signum, frame):
     raise KeyboardInterrupt  # unwinds through the runner, which kills the training process group
 
 
-def build_loop(meta: dict[str, Any]) -> tuple[Family, Proposer, LoopSettings]:
+def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
     """What a campaign.json runs: its family, its proposer and the loop's settings."""
-    settings = meta["settings"]
-    _check_key(meta["proposer"], settings)
-    family = resolve_family(meta["family"])
+    settings = meta.settings
+    _check_key(meta.proposer, settings)
+    family = resolve_family(meta.family)
     proposer = make_proposer(
-        meta["proposer"],
+        meta.proposer,
         shown_registry(family.registry, settings["blind"]),
         seed=settings["seed"],
         model=settings["model"],
         base_url=settings["base_url"],
         space=settings["space"],
-        **llm_kwargs(meta["proposer"], settings),
+        **llm_kwargs(meta.proposer, settings),
     )
     if settings["enqueue"]:
         queue = full_queue(family.space, family.baseline_config, settings["enqueue"])
@@ -243,7 +230,7 @@ def build_loop(meta: dict[str, Any]) -> tuple[Family, Proposer, LoopSettings]:
             "--early-stop needs --executor local: a Ray task's progress is not read while it runs"
         )
     loop = LoopSettings(
-        proposer_name=meta["proposer"],
+        proposer_name=meta.proposer,
         budgets=Budgets(
             max_seconds=settings["max_seconds"],
             max_runs=settings["max_runs"],
@@ -280,8 +267,8 @@ def run(args: argparse.Namespace) -> int:
         family, proposer, loop = build_loop(meta)
         family.check_outside(root)
         lock = CampaignLock(root, "loop", create=True).acquire()  # one process per campaign
-        write_json_atomic(CampaignPaths(root).campaign_json, meta)
-        executor = _executor(args, meta["settings"])
+        meta.write(root)
+        executor = _executor(args, meta.settings)
     except (UsageError, FamilyError, CampaignError, ValueError, ImportError, RuntimeError) as err:
         print(f"autoresearch loop: error: {err}", file=sys.stderr)
         return 2
@@ -320,8 +307,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_repeats(args: argparse.Namespace) -> int:
     """--repeats N: N campaigns of one arm in sub-directories of --campaign (autoresearch/loop/repeats.py)."""
-    now = datetime.now(timezone.utc)
-    session = {"started": now.isoformat(timespec="seconds"), "argv": sys.argv[1:]}
     try:
         if args.resume and not args.campaign:
             raise UsageError("--resume needs --campaign DIR")
@@ -334,12 +319,13 @@ def _run_repeats(args: argparse.Namespace) -> int:
             raise UsageError("--family is required (a name under families/ or a directory)")
         family = resolve_family(args.family or saved["family"])
         proposer = args.proposer or saved.get("proposer") or _default_proposer()
-        root = Path(args.campaign or f"runs/{family.name}-{proposer}-{now.astimezone():%Y%m%d-%H%M%S}")
+        stamp = datetime.now(timezone.utc).astimezone()
+        root = Path(args.campaign or f"runs/{family.name}-{proposer}-{stamp:%Y%m%d-%H%M%S}")
         # the group's --workers run whole campaigns side by side; each campaign runs one run at a time
         settings = {**_settings(args, saved.get("settings", {})), "workers": 1, "executor": "local"}
         args.workers, args.executor = args.workers or 1, args.executor or "local"
         group = repeats.plan_group(
-            root, family=family, proposer=proposer, settings=settings, repeats=args.repeats, session=session
+            root, family=family, proposer=proposer, settings=settings, repeats=args.repeats, session=session()
         )
         build_loop(group.tasks[0].meta)  # refuse bad settings before anything runs
         family.check_outside(root)

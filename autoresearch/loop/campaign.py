@@ -12,12 +12,14 @@ from the file belongs to a run in flight (its ``runs/<run_id>/intent.json``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import sys
+from dataclasses import asdict, dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 from autoresearch.family import Family
+from autoresearch.journal import JournalError, read_json, write_json_atomic
 from autoresearch.loop.verdicts import is_better, reaches_target
 from autoresearch.space import canonical_key
 
@@ -72,8 +74,96 @@ def new_record(**fields: Any) -> dict[str, Any]:
     return {**dict.fromkeys(RECORD_KEYS), **fields}
 
 
+def session() -> dict[str, Any]:
+    """One entry of campaign.json's ``sessions``: when a command started on the campaign, and how."""
+    return {"started": now(), "argv": sys.argv[1:]}
+
+
+def portable_path(path: str | Path) -> str:
+    """``path`` as campaign files record it: relative to the working directory when inside it, so that a
+    committed campaign holds no machine's absolute paths; absolute otherwise."""
+    resolved = Path(path).resolve()
+    try:
+        return str(resolved.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(resolved)
+
+
 class CampaignError(RuntimeError):
     """The campaign directory is inconsistent or cannot be used."""
+
+
+@dataclass(frozen=True)
+class CampaignMeta:
+    """campaign.json: what a campaign runs and the sessions that ran it. The one way the file is made
+    (``loop``, each repeat of a ``--repeats`` group, the audit's random arm, tests) and read back
+    (``--resume``, the audit, ``check``), so every writer agrees.
+
+    ``settings`` are the writer's: the loop's flags (commands/loop.py DEFAULTS) for a loop campaign,
+    the arm's draw for a random arm. ``group`` names the group a repeat belongs to.
+    """
+
+    family: str  # the family directory (portable_path)
+    family_name: str
+    proposer: str
+    settings: dict[str, Any]
+    created: str
+    sessions: tuple[dict[str, Any], ...] = ()
+    group: dict[str, Any] | None = None  # {"dir": group directory, "repeat": index}
+
+    @classmethod
+    def new(
+        cls, family: Family, proposer: str, settings: dict[str, Any], *, group: dict[str, Any] | None = None
+    ) -> CampaignMeta:
+        started = session()
+        return cls(
+            portable_path(family.path), family.name, proposer, settings, started["started"], (started,), group
+        )
+
+    def resumed(self, family: Family, settings: dict[str, Any]) -> CampaignMeta:
+        """This campaign continued by a new session, its family where it is now, with ``settings``."""
+        if family.name != self.family_name:
+            raise CampaignError(f"this campaign is of family {self.family_name!r}, not {family.name!r}")
+        return replace(
+            self, family=portable_path(family.path), settings=settings, sessions=(*self.sessions, session())
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        data = {**asdict(self), "sessions": list(self.sessions)}
+        if self.group is None:
+            del data["group"]
+        return data
+
+    @classmethod
+    def from_json(cls, data: Any, where: str = "campaign.json") -> CampaignMeta:
+        if not isinstance(data, dict):
+            raise CampaignError(f"{where}: does not hold a JSON object")
+        missing = [k for k in ("family", "family_name", "proposer", "settings") if k not in data]
+        if missing:
+            raise CampaignError(f"{where}: lacks {', '.join(missing)}")
+        settings = dict(data["settings"])
+        if "space" in data:  # random arms written before the space moved into settings
+            settings.setdefault("space", data["space"])
+        return cls(
+            data["family"],
+            data["family_name"],
+            data["proposer"],
+            settings,
+            data.get("created", ""),
+            tuple(data.get("sessions", ())),
+            data.get("group"),
+        )
+
+    @classmethod
+    def read(cls, root: str | Path) -> CampaignMeta:
+        path = CampaignPaths(Path(root)).campaign_json
+        try:
+            return cls.from_json(read_json(path), str(path))
+        except JournalError as err:
+            raise CampaignError(str(err)) from err
+
+    def write(self, root: str | Path) -> None:
+        write_json_atomic(CampaignPaths(Path(root)).campaign_json, self.to_json())
 
 
 @dataclass(frozen=True)

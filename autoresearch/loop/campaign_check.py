@@ -17,7 +17,14 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.family import Family, FamilyError
-from autoresearch.loop.campaign import RUN_STATUSES, STATUSES, TERMINAL, CampaignPaths
+from autoresearch.loop.campaign import (
+    RUN_STATUSES,
+    STATUSES,
+    TERMINAL,
+    CampaignError,
+    CampaignMeta,
+    CampaignPaths,
+)
 
 
 @dataclass(frozen=True)
@@ -91,6 +98,13 @@ def _check_family(meta: dict[str, Any]) -> list[Problem]:
 def _check_meta(paths: CampaignPaths) -> list[Problem]:
     """The problems of campaign.json, of its family and of the campaign's family.json."""
     meta, problem = _read_object(paths.campaign_json, "campaign.json")
+    if meta is not None:
+        try:
+            CampaignMeta.from_json(meta)
+        except CampaignError as err:
+            problem = Problem(
+                "campaign.json", str(err).removeprefix("campaign.json: "), "restore it from a backup"
+            )
     problems = [problem] if problem else _check_family(meta)
     if paths.family_json.exists():
         registry, problem = _read_object(paths.family_json, "family.json")

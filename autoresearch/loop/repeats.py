@@ -29,7 +29,7 @@ from typing import Any
 from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import JournalError, read_json, read_jsonl, write_json_atomic
-from autoresearch.loop.campaign import CampaignPaths
+from autoresearch.loop.campaign import CampaignMeta, CampaignPaths, portable_path
 
 GROUP_FILE = "repeats.json"
 REPEAT_PREFIX = "repeat-"
@@ -78,7 +78,7 @@ def repeat_dirs(group: str | Path) -> list[Path]:
 class RepeatTask:
     name: str
     root: str  # the repeat's campaign directory
-    meta: dict[str, Any]  # its campaign.json
+    meta: CampaignMeta  # its campaign.json
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,7 @@ class Group:
         write_json_atomic(self.root / GROUP_FILE, self.meta)
         for task in self.tasks:
             Path(task.root).mkdir(exist_ok=True)
-            write_json_atomic(CampaignPaths(Path(task.root)).campaign_json, task.meta)
+            task.meta.write(task.root)
 
 
 def plan_group(
@@ -138,7 +138,7 @@ def plan_group(
         repeats = repeats or saved["repeats"]
     seeds = [settings["seed"] + i for i in range(repeats)]
     meta = {
-        "family": str(family.path),
+        "family": portable_path(family.path),
         "family_name": family.name,
         "proposer": proposer,
         "repeats": repeats,
@@ -149,21 +149,19 @@ def plan_group(
     }
     tasks = []
     for i, seed in enumerate(seeds):
-        campaign = CampaignPaths(root / repeat_name(i)).campaign_json
-        previous = (
-            read_json(campaign) if campaign.exists() else {"created": session["started"], "sessions": []}
+        task_root = root / repeat_name(i)
+        previous = CampaignMeta.read(task_root) if CampaignPaths(task_root).campaign_json.exists() else None
+        campaign_meta = CampaignMeta(  # sessions: the repeat's own process adds one as it resumes
+            family=portable_path(family.path),
+            family_name=family.name,
+            proposer=proposer,
+            settings={**settings, "seed": seed},
+            created=previous.created if previous else session["started"],
+            sessions=previous.sessions if previous else (),
+            group={"dir": portable_path(root), "repeat": i},
         )
-        campaign_meta = {  # the loop's campaign.json, and the group it belongs to
-            "family": str(family.path),
-            "family_name": family.name,
-            "proposer": proposer,
-            "settings": {**settings, "seed": seed},
-            "created": previous["created"],
-            "sessions": previous["sessions"],  # the repeat's own process adds its session
-            "group": {"dir": str(root.resolve()), "repeat": i},
-        }
         # absolute: a Ray worker need not share the working directory
-        tasks.append(RepeatTask(repeat_name(i), str((root / repeat_name(i)).resolve()), campaign_meta))
+        tasks.append(RepeatTask(repeat_name(i), str(task_root.resolve()), campaign_meta))
     return Group(root, meta, tasks)
 
 
@@ -187,7 +185,7 @@ def _outcome(task: RepeatTask, returncode: int, before: int, last_line: str) -> 
     return {
         "repeat": task.name,
         "dir": task.root,
-        "seed": task.meta["settings"]["seed"],
+        "seed": task.meta.settings["seed"],
         "returncode": returncode,
         "status": status,
         "trigger": last.get("trigger"),

@@ -10,7 +10,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:
+    from autoresearch.loop.campaign import CampaignMeta
 
 # Settings kept in campaign.json (None: the proposer's default); flags given on --resume override them.
 LLM_DEFAULTS: dict[str, Any] = {
@@ -149,7 +152,7 @@ def _typical_run(context: Any) -> dict[str, Any]:
     }
 
 
-def dry_run(meta: dict[str, Any], out: TextIO | None = None) -> int:
+def dry_run(meta: CampaignMeta, out: TextIO | None = None) -> int:
     """Print the first request the proposer would send and the estimated cost of the campaign."""
     out = out or sys.stdout
     import anthropic
@@ -161,10 +164,10 @@ def dry_run(meta: dict[str, Any], out: TextIO | None = None) -> int:
     from autoresearch.loop.stopping import Budgets, closest_trigger
     from autoresearch.proposers import make_proposer
 
-    settings, name = meta["settings"], meta["proposer"]
+    settings, name = meta.settings, meta.proposer
     if name not in ("anthropic", "openai"):
         raise ValueError(f"--dry-run shows an LLM's request; the {name!r} proposer sends none")
-    family = resolve_family(meta["family"])
+    family = resolve_family(meta.family)
     blind = settings["blind"]
     client = (
         anthropic.Anthropic(api_key="dry-run")

@@ -1,0 +1,107 @@
+"""campaign.json has one owner (autoresearch.loop.campaign.CampaignMeta): every writer (the loop, each
+repeat of a group, the audit's random arm) writes the same keys, paths inside the working directory are
+written relative to it, and files of older writers still read."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from audit_support import AUDIT_FAMILY, P1, ScriptedProposer, copy_family, run_campaign
+from loop_helpers import copy_toy
+
+from autoresearch.audit.inputs import open_campaign
+from autoresearch.audit.random_arm import run_random_arm
+from autoresearch.cli import main
+from autoresearch.executors import LocalExecutor
+from autoresearch.journal import read_json
+from autoresearch.loop.campaign import CampaignError, CampaignMeta, portable_path
+
+KEYS = {"family", "family_name", "proposer", "settings", "created", "sessions"}
+
+
+def test_portable_path_is_relative_inside_the_working_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "families" / "toy").mkdir(parents=True)
+    assert portable_path(tmp_path / "families" / "toy") == "families/toy"
+    assert portable_path("families/../families/toy") == "families/toy"
+    outside = tmp_path.parent / "elsewhere"
+    assert portable_path(outside) == str(outside.resolve())
+
+
+def test_every_writer_writes_the_same_record_with_relative_paths(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    toy = copy_toy(tmp_path)
+    common = ["--family", str(toy), "--proposer", "random", "--max-iters", "2"]
+    assert main(["loop", *common, "--campaign", "single"]) == 0
+    assert main(["loop", *common, "--repeats", "2", "--campaign", "group"]) == 0
+    family = copy_family(AUDIT_FAMILY, tmp_path / "audit_family")
+    run_campaign(family, tmp_path / "audited", ScriptedProposer([P1]), iterations=1)
+    run_random_arm(open_campaign(tmp_path / "audited"), LocalExecutor(1), count=2, out=tmp_path / "arm")
+
+    written = {
+        name: read_json(tmp_path / name / "campaign.json")
+        for name in ("single", "group/repeat-00", "group/repeat-01", "audited", "arm")
+    }
+    for name, data in written.items():
+        assert KEYS <= set(data) <= KEYS | {"group"}, name
+        assert not data["family"].startswith("/"), (name, data["family"])
+        assert CampaignMeta.from_json(data).to_json() == data, name
+    assert written["group/repeat-01"]["group"] == {"dir": "group", "repeat": 1}
+    assert written["arm"]["settings"]["budget_from"] == "audited"
+    assert written["arm"]["settings"]["space"] == "random-range" and len(written["arm"]["sessions"]) == 1
+
+
+def test_resume_adds_a_session_and_keeps_the_rest(tmp_path):
+    toy = copy_toy(tmp_path)
+    campaign = tmp_path / "c"
+    assert (
+        main(
+            [
+                "loop",
+                "--family",
+                str(toy),
+                "--proposer",
+                "random",
+                "--max-iters",
+                "1",
+                "--campaign",
+                str(campaign),
+            ]
+        )
+        == 0
+    )
+    first = CampaignMeta.read(campaign)
+    assert main(["loop", "--resume", "--campaign", str(campaign), "--max-iters", "2"]) == 0
+    second = CampaignMeta.read(campaign)
+    assert second.sessions[:1] == first.sessions and len(second.sessions) == 2
+    assert (second.created, second.family, second.proposer) == (first.created, first.family, first.proposer)
+    assert second.settings == {**first.settings, "max_iters": 2}
+
+
+def test_a_random_arm_of_an_older_writer_reads_with_its_space_in_settings(tmp_path):
+    legacy = {
+        "family": "f",
+        "family_name": "toy",
+        "proposer": "random",
+        "settings": {"seed": 0},
+        "space": "bounds",
+    }
+    meta = CampaignMeta.from_json(legacy)
+    assert meta.settings == {"seed": 0, "space": "bounds"} and "space" not in meta.to_json()
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ([], "does not hold a JSON object"),
+        ({"family": "f", "proposer": "tpe"}, "lacks family_name, settings"),
+    ],
+)
+def test_a_malformed_campaign_json_names_what_is_wrong(tmp_path, data, message, capsys):
+    (tmp_path / "campaign.json").write_text(json.dumps(data))
+    with pytest.raises(CampaignError, match=message):
+        CampaignMeta.read(tmp_path)
+    (tmp_path / "proposals.jsonl").write_text("")
+    main(["check", "--campaign", str(tmp_path)])
+    assert "campaign.json" in capsys.readouterr().out
