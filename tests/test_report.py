@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import struct
 
 import pytest
@@ -66,6 +67,21 @@ def test_report_figures_are_non_trivial_pngs(audited):
         width, height = png_size(root / name)
         assert width >= 300 and height >= 200 and (root / name).stat().st_size > 10_000
         assert f"({name})" in (root / "report.md").read_text()
+
+
+def test_a_clone_without_the_saved_policy_keeps_its_figure_or_says_why(audited, tmp_path):
+    _, root, _, _ = audited
+    clone = tmp_path / "clone"  # verification runs (and their weights) are not committed
+    shutil.copytree(root, clone, ignore=shutil.ignore_patterns("out"))
+    assert main(["report", "--campaign", str(clone)]) == 0
+    assert "![trajectories](trajectories.png)" in (clone / "report.md").read_text()
+    (clone / "trajectories.png").unlink()
+    assert main(["report", "--campaign", str(clone)]) == 0
+    text = (clone / "report.md").read_text()
+    assert (
+        "No family figure: the promoted policy's saved run (" in text and "re-run verify to plot it" in text
+    )
+    assert not (clone / "trajectories.png").exists()
 
 
 def test_rerunning_the_audit_runs_nothing_again(audited):

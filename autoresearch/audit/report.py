@@ -24,7 +24,7 @@ from autoresearch.audit.inputs import AuditedCampaign, open_campaign
 from autoresearch.audit.prune import DECIDED_BY, RULES
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.campaign import RUN_STATUSES
+from autoresearch.loop.campaign import RUN_STATUSES, portable_path
 from autoresearch.loop.runner import family_env
 
 COLORS = {"agent": "#2ca02c", "random": "#1f77b4", "random_matched": "#6baed6", "other": "#ff7f0e"}
@@ -168,6 +168,12 @@ def family_hook(campaign: AuditedCampaign, verify: dict[str, Any] | None, out: P
         return "no promoted configuration to plot"
     run = next((r for r in promoted["reseeds"] if r["excluded"] is None), None)
     policy = campaign.step_dir("verify") / run["run_id"] / "out"
+    if not policy.is_dir():  # verification runs are not committed: a clone has the figure, not the weights
+        if out.exists():
+            return None
+        return (
+            f"the promoted policy's saved run ({portable_path(policy)}) is not here; re-run verify to plot it"
+        )
     cmd = [sys.executable, "report.py", "--policy", str(policy), "--out", str(out.resolve())]
     try:
         done = subprocess.run(
@@ -412,7 +418,7 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
     lines = [
         f"# Audit report: {campaign.root.name}",
         "",
-        f"Family **{family.name}** ({family.path}); metric `{family.metric}` ({better} is better); "
+        f"Family **{family.name}** ({portable_path(family.path)}); metric `{family.metric}` ({better} is better); "
         f"target {family.target}; feasibility field `{family.feasibility_field}`. "
         f"Campaign proposer: {campaign.meta.proposer}, {n_runs} experiments. "
         "How to read this report: docs/audit.md.",

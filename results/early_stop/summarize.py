@@ -1,20 +1,26 @@
-"""Run-seconds, experiments and best of the two campaigns of results/early_stop/run.sh (runs nothing)."""
+"""Run-seconds, experiments and best of campaigns (runs nothing).
+
+python results/early_stop/summarize.py runs/early-stop-none runs/early-stop-asha
+python results/early_stop/summarize.py results/rendezvous/tpe results/early_stop/rdv-tpe-asha
+"""
 
 import json
 import sys
 from pathlib import Path
 
-root = Path(sys.argv[1] if len(sys.argv) > 1 else "runs")
-print("| early stop | experiments | ran / pruned / failed | run-seconds | per experiment | best | stopped by |")
-print("|---|---|---|---|---|---|---|")
-for stop in ("none", "asha"):
-    records = [json.loads(line) for line in (root / f"early-stop-{stop}" / "proposals.jsonl").open()]
-    runs = [r for r in records if r["status"] in ("ran", "failed", "pruned")]
+campaigns = [Path(d) for d in sys.argv[1:]] or [Path("runs/early-stop-none"), Path("runs/early-stop-asha")]
+print(
+    "| campaign | early stop | experiments | ran / pruned / failed | run-seconds | per experiment | best | stopped by |"
+)
+print("|---|---|---|---|---|---|---|---|")
+for root in campaigns:
+    settings = json.loads((root / "campaign.json").read_text())["settings"]
+    records = [json.loads(line) for line in (root / "proposals.jsonl").open()]
+    runs = [r for r in records if r["status"] in ("ran", "failed", "pruned") and r["proposer"] != "baseline"]
     seconds = sum(r["wall_seconds"] or 0.0 for r in runs)
     counts = "/".join(str(sum(r["status"] == s for r in runs)) for s in ("ran", "pruned", "failed"))
-    best = min((r["metric"] for r in runs if r["status"] == "ran"), default=None)
-    last = records[-1]
+    best = min((r["metric"] for r in runs if r["status"] == "ran"), default=float("nan"))
     print(
-        f"| {stop} | {len(runs)} | {counts} | {seconds:.0f} s | {seconds / len(runs):.1f} s | "
-        f"{best:.4g} | {last.get('trigger')} |"
+        f"| {root.as_posix()} | {settings.get('early_stop', 'none')} | {len(runs)} | {counts} | {seconds:.0f} s | "
+        f"{seconds / len(runs):.1f} s | {best:.4g} | {records[-1].get('trigger')} |"
     )
