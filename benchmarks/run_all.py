@@ -1,12 +1,13 @@
 """Every benchmark the project tracks, in one Markdown table.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/run_all.py [--quick] [--tuned] [--out PATH]
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/run_all.py [--quick] [--tuned] [--parallel] [--out PATH]
 
 Reuses the measurements of bench_envs.py, bench_experts_cbf.py and bench_audit.py; times each
 family's train.py through autoresearch.runner, the loop's own path (a patched copy in a
 temporary run directory, run as a subprocess); measures the loop's overhead per iteration on a
 temporary copy of the toy family; and reads the key-free arms' experiments to target from the
-committed groups of repeats in results/ (nothing is run for those rows). A few minutes; ``--quick`` shortens every measurement
+committed groups of repeats in results/ and the compute early stopping saved from committed campaigns
+(nothing is run for those rows); ``--parallel`` also times a docking campaign at --workers 1 and 2. A few minutes; ``--quick`` shortens every measurement
 (a smoke test, not numbers to quote). 'Tuned' is the audited best in each family.json: its wall
 time is read from the committed reseeded runs, or with ``--tuned`` timed now (docking's takes
 minutes on a CPU). Progress goes to stderr, the table to stdout.
@@ -31,11 +32,13 @@ import numpy as np
 from bench_audit import audit_walls, make_campaign
 from bench_envs import NATIVE_ENVS, SYNC_ENVS, bench_single, bench_vector
 from bench_experts_cbf import cbf_measure, docking_expert_run, rendezvous_expert_time
+from bench_loop_parallel import campaign_wall
 
 from autoresearch.compare.inputs import common_family, load_arms, noise_reference
 from autoresearch.compare.stats import best_so_far, experiments_to_target, median_experiments_to_target
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
+from autoresearch.loop.campaign import BASELINE_PROPOSER
 from autoresearch.loop.runner import run_experiment
 from autoresearch.proposers import DEFAULT_SPACE
 
@@ -46,6 +49,11 @@ NATIVE = NATIVE_ENVS[0]
 BASELINE_TIMEOUT_S, TUNED_TIMEOUT_S = 300.0, 1800.0
 # Committed groups of repeats (loop --repeats) per family: (directory, prefix of the arm groups).
 COMPARE_GROUPS = {"rendezvous": ("results/compare-rendezvous", "rdv"), "docking": ("results/compare", "dock")}
+
+# Committed campaigns of one search without and with --early-stop: (label, without, with).
+EARLY_STOP_PAIRS = [
+    ("rendezvous TPE, 40 experiments", "results/rendezvous/tpe", "results/early_stop/rdv-tpe-asha"),
+]
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
 
@@ -213,6 +221,64 @@ def audit_row(sleep: float, where: Path) -> Row:
     )
 
 
+def parallel_row(measure: bool, where: Path) -> Row:
+    """Campaign wall time, --workers 2 vs 1 (bench_loop_parallel.py's docking campaign of 8 runs)."""
+    what = "campaign wall time, loop --workers 2 vs 1"
+    if not measure:
+        return (
+            what,
+            "not run",
+            "",
+            "--parallel runs it (minutes); last measured: results/logs/bench_loop_parallel.txt",
+        )
+    one, _ = campaign_wall("docking", 1, 8, 0, where)
+    two, _ = campaign_wall("docking", 2, 8, 0, where)
+    return (
+        what,
+        f"{two:.1f} s vs {one:.1f} s",
+        f"{two / one:.2f}x (target <= 0.6x)",
+        "docking random, 8 runs, seed 0",
+    )
+
+
+def _search_cost(root: Path, direction: int) -> tuple[int, float, float | None, int]:
+    """(experiments, run-seconds, best finished metric, finished runs) of a committed campaign."""
+    runs = [
+        r
+        for r in read_jsonl(root / "proposals.jsonl")
+        if r["status"] in ("ran", "failed", "pruned") and r["proposer"] != BASELINE_PROPOSER
+    ]
+    finished = [r["metric"] for r in runs if r["status"] == "ran"]
+    best = max(finished, key=lambda m: direction * m) if finished else None
+    return len(runs), sum(r["wall_seconds"] or 0.0 for r in runs), best, len(finished)
+
+
+def early_stop_rows() -> list[Row]:
+    """Run-seconds per experiment and best found, the same search without and with early stopping,
+    from committed campaigns (nothing is run)."""
+    rows = []
+    for label, without, with_ in EARLY_STOP_PAIRS:
+        what = f"early stopping, {label}: run-seconds per experiment"
+        if not (ROOT / with_ / "proposals.jsonl").is_file():
+            rows.append((what, "not run", "", f"needs {with_} (results/early_stop/)"))
+            continue
+        registry = read_json(ROOT / without / "family.json")
+        direction = 1 if registry["direction"] == "maximize" else -1
+        stop = read_json(ROOT / with_ / "campaign.json")["settings"]["early_stop"]
+        (n0, s0, best0, done0), (n1, s1, best1, done1) = (
+            _search_cost(ROOT / d, direction) for d in (without, with_)
+        )
+        rows.append(
+            (
+                f"{what}, {stop} vs none",
+                f"{s1 / n1:.1f} s vs {s0 / n0:.1f} s",
+                f"{s1 / n1 / (s0 / n0):.2f}x",
+                f"best {best1:.4g} vs {best0:.4g}; runs finished {done1}/{n1} vs {done0}/{n0}; {with_}",
+            )
+        )
+    return rows
+
+
 def group_space(group: Path) -> str:
     """The space a group of repeats searched (before --space: its proposer's default)."""
     meta = read_json(group / "repeats.json")
@@ -287,6 +353,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="short measurements: a smoke test")
     parser.add_argument("--tuned", action="store_true", help="also time a tuned experiment per family")
+    parser.add_argument("--parallel", action="store_true", help="also time a campaign at --workers 1 and 2")
     parser.add_argument("--out", type=Path, help="also write the table as Markdown to this file")
     args = parser.parse_args()
     settings = QUICK if args.quick else FULL
@@ -305,8 +372,11 @@ def main() -> int:
         rows.append(loop_row(settings.loop_iterations, Path(tempfile.mkdtemp(dir=tmp))))
         progress("audit, 1 and 2 workers")
         rows.append(audit_row(settings.audit_sleep_s, tmp))
-        progress("key-free arms, from results/")
+        progress("campaign wall time, --workers 2 vs 1" if args.parallel else "parallel campaigns: skipped")
+        rows.append(parallel_row(args.parallel, Path(tempfile.mkdtemp(dir=tmp))))
+        progress("key-free arms and early stopping, from results/")
         rows += compare_rows()
+        rows += early_stop_rows()
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"
     print(text, end="")

@@ -59,3 +59,31 @@ def test_arms_over_different_spaces_are_flagged(tmp_path, monkeypatch):
     monkeypatch.setattr(run_all, "ROOT", tmp_path)
     monkeypatch.setattr(run_all, "COMPARE_GROUPS", {"toy": ("results/cmp", "toy")})
     assert "spaces differ: random random-range, tpe bounds" in run_all.compare_rows()[0][3]
+
+
+def make_campaign(root: Path, runs: list[tuple[str, float | None, float]], early_stop: str = "none") -> None:
+    """A campaign of (status, metric, wall seconds) runs after a baseline, toy family (minimize)."""
+    root.mkdir(parents=True)
+    (root / "family.json").write_text((TOY_FAMILY / "family.json").read_text())
+    (root / "campaign.json").write_text(json.dumps({"settings": {"early_stop": early_stop}}))
+    baseline = {"proposer": "baseline", "status": "ran", "metric": 9.0, "wall_seconds": 100.0}
+    records = [baseline] + [
+        {"proposer": "tpe", "status": status, "metric": metric, "wall_seconds": wall}
+        for status, metric, wall in runs
+    ]
+    records.append({"proposer": "tpe", "status": "stopped", "metric": None, "wall_seconds": None})
+    (root / "proposals.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+
+
+def test_early_stop_row_compares_run_seconds_per_experiment_and_best(tmp_path, monkeypatch):
+    make_campaign(tmp_path / "none", [("ran", 0.5, 80.0), ("failed", None, 150.0), ("ran", 0.4, 70.0)])
+    make_campaign(
+        tmp_path / "asha", [("pruned", None, 10.0), ("ran", 0.6, 40.0), ("pruned", None, 10.0)], "asha"
+    )
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    monkeypatch.setattr(run_all, "EARLY_STOP_PAIRS", [("toy", "none", "asha"), ("missing", "none", "nope")])
+    row, missing = run_all.early_stop_rows()
+    # 60 / 3 = 20 s against 300 / 3 = 100 s (the baseline left out); a pruned run is never best.
+    assert row[0].endswith("asha vs none") and row[1] == "20.0 s vs 100.0 s" and row[2] == "0.20x"
+    assert row[3].startswith("best 0.6 vs 0.4; runs finished 1/3 vs 2/3")
+    assert missing[1] == "not run"
