@@ -85,6 +85,15 @@ def test_known_ordering(arms, capsys):
     assert data["improvement"]["good > bad"]["p"] == 1.0
 
 
+def test_directories_inside_the_working_directory_are_written_relative(arms, monkeypatch):
+    monkeypatch.chdir(arms)  # as from a repository's root: committed comparisons name no machine
+    assert main(["compare", str(arms / "good"), str(arms / "bad1"), "--out", "cmp"]) == 0
+    data = json.loads((arms / "cmp" / "compare.json").read_text())
+    assert data["arms"]["good"]["dirs"][:2] == ["good/repeat-00", "good/repeat-01"]
+    md = (arms / "cmp" / "compare.md").read_text().splitlines()
+    assert any(line.startswith("| good | scripted |") and line.endswith("| good |") for line in md)
+
+
 def test_budget_and_noise_units(arms):
     found = load_arms([("good", [arms / "good"]), ("bad", [arms / f"bad{i}" for i in (1, 2, 3)])])
     a = analyse(found, budget=2, n_resamples=200)

@@ -21,6 +21,7 @@ from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormat
 from autoresearch.audit.report import LOG_SPAN
 from autoresearch.compare import stats as compare
 from autoresearch.compare.inputs import CompareError, RepeatedArm, common_family, noise_reference
+from autoresearch.loop.campaign import portable_path
 
 BUDGET_TRIGGERS = ("max_iters", "max_runs", "wall_clock", "max_cost")
 TIME_POINTS = 200
@@ -350,7 +351,7 @@ def _arms_table(a: Analysis) -> list[str]:
         span = f"{min(counts)}" if min(counts) == max(counts) else f"{min(counts)}–{max(counts)}"
         feasible = int(np.isfinite(a.summaries[arm.name]["finals"]).sum())
         parents = sorted(
-            {str(r.dir.parent if r.dir.name.startswith("repeat-") else r.dir) for r in arm.repeats}
+            {portable_path(r.dir.parent if r.dir.name.startswith("repeat-") else r.dir) for r in arm.repeats}
         )
         rows.append(
             f"| {arm.name} | {arm.proposers} | {len(arm.repeats)} | {span} | {feasible} of {len(arm.repeats)} "
@@ -449,7 +450,7 @@ def write_comparison(
         "seed": seed,
         "arms": {
             arm.name: {
-                "dirs": [str(r.dir) for r in arm.repeats],
+                "dirs": [portable_path(r.dir) for r in arm.repeats],
                 "experiments": [r.n for r in arm.repeats],
                 **a.summaries[arm.name],
             }
