@@ -87,3 +87,19 @@ def test_early_stop_row_compares_run_seconds_per_experiment_and_best(tmp_path, m
     assert row[0].endswith("asha vs none") and row[1] == "20.0 s vs 100.0 s" and row[2] == "0.20x"
     assert row[3].startswith("best 0.6 vs 0.4; runs finished 1/3 vs 2/3")
     assert missing[1] == "not run"
+
+
+def test_parallel_row_reads_the_committed_measurement(tmp_path, monkeypatch):
+    log = tmp_path / "results" / "logs" / "bench_loop_parallel.txt"
+    log.parent.mkdir(parents=True)
+    log.write_text(
+        "measure  value  note\n"
+        "docking random, --max-runs 8, --workers 1          150.0 s  8 runs ok\n"
+        "docking random, --max-runs 8, --workers 2           90.0 s  8 runs ok\n"
+        "wall time ratio, --workers 2 / 1                     0.60x  target <= 0.6x\n"
+    )
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    row = run_all.parallel_row(False, tmp_path)
+    assert row[1:3] == ("90.0 s vs 150.0 s", "0.60x (target <= 0.6x)") and "results/logs" in row[3]
+    log.unlink()
+    assert run_all.parallel_row(False, tmp_path)[1] == "not run"

@@ -48,6 +48,12 @@ def test_every_writer_writes_the_same_record_with_relative_paths(tmp_path, monke
         assert not data["family"].startswith("/"), (name, data["family"])
         assert CampaignMeta.from_json(data).to_json() == data, name
     assert written["group/repeat-01"]["group"] == {"dir": "group", "repeat": 1}
+    # each repeat's own process is started with its absolute directory; its session records it portably
+    assert written["group/repeat-01"]["sessions"][-1]["argv"][:3] == [
+        "--resume",
+        "--campaign",
+        "group/repeat-01",
+    ]
     assert written["arm"]["settings"]["budget_from"] == "audited"
     assert written["arm"]["settings"]["space"] == "random-range" and len(written["arm"]["sessions"]) == 1
 

@@ -75,8 +75,10 @@ def new_record(**fields: Any) -> dict[str, Any]:
 
 
 def session() -> dict[str, Any]:
-    """One entry of campaign.json's ``sessions``: when a command started on the campaign, and how."""
-    return {"started": now(), "argv": sys.argv[1:]}
+    """One entry of campaign.json's ``sessions``: when a command started on the campaign, and how (its
+    path arguments portable, e.g. the absolute ``--campaign`` each repeat of a group is resumed with)."""
+    argv = [portable_path(a) if Path(a).is_absolute() and Path(a).exists() else a for a in sys.argv[1:]]
+    return {"started": now(), "argv": argv}
 
 
 def portable_path(path: str | Path) -> str:

@@ -43,11 +43,11 @@ try:
     ctypes.CDLL(None).prctl(1, signal.SIGTERM)
 except (AttributeError, OSError):
     pass
-if os.getppid() != int(sys.argv[1]):
+if os.getppid() != int(sys.argv.pop(1)):
     sys.exit(130)
 from autoresearch.commands import loop
 parser = loop.add_parser(argparse.ArgumentParser(prog="autoresearch").add_subparsers())
-sys.exit(loop.run(parser.parse_args(sys.argv[2:])))
+sys.exit(loop.run(parser.parse_args(sys.argv[1:])))
 """
 _CHILDREN: set[subprocess.Popen] = set()  # repeats in flight in this process: where a cancel goes
 
