@@ -59,7 +59,9 @@ def test_lock_path_mistakes_are_one_line_errors(tmp_path):
 
 
 def test_two_concurrent_resumes_the_second_is_refused(campaign, tmp_path):
-    env = {**os.environ, "TOY_SLEEP_S": "0.3"}
+    # 5 runs of 1.5 s: the first still holds the campaign when the second has started up, even on a
+    # loaded machine (where a Python start-up alone can take seconds)
+    env = {**os.environ, "TOY_SLEEP_S": "1.5"}
     first = subprocess.Popen(
         loop_cmd(campaign, "--resume", "--max-iters", "8"),
         env=env,
