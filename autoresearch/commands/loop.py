@@ -176,6 +176,12 @@ def _settings(args: argparse.Namespace, saved: dict[str, Any]) -> dict[str, Any]
     return settings
 
 
+def _campaign_dir(args: argparse.Namespace, family: Family, proposer: str) -> Path:
+    """--campaign, else runs/<family>-<proposer>-<local time>."""
+    stamp = datetime.now(timezone.utc).astimezone()
+    return Path(args.campaign or f"runs/{family.name}-{proposer}-{stamp:%Y%m%d-%H%M%S}")
+
+
 def _plan(args: argparse.Namespace) -> tuple[Path, CampaignMeta]:
     """(campaign dir, its campaign.json) for a new or resumed campaign."""
     if args.resume:
@@ -193,8 +199,7 @@ def _plan(args: argparse.Namespace) -> tuple[Path, CampaignMeta]:
         raise UsageError("--family is required (a name under families/ or a directory)")
     family = resolve_family(args.family)
     proposer = args.proposer or _default_proposer()
-    stamp = datetime.now(timezone.utc).astimezone()
-    root = Path(args.campaign or f"runs/{family.name}-{proposer}-{stamp:%Y%m%d-%H%M%S}")
+    root = _campaign_dir(args, family, proposer)
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise UsageError(f"{root} already exists; continue it with --resume --campaign {root}")
     return root, CampaignMeta.new(family, proposer, _settings(args, {}))
@@ -319,8 +324,7 @@ def _run_repeats(args: argparse.Namespace) -> int:
             raise UsageError("--family is required (a name under families/ or a directory)")
         family = resolve_family(args.family or saved["family"])
         proposer = args.proposer or saved.get("proposer") or _default_proposer()
-        stamp = datetime.now(timezone.utc).astimezone()
-        root = Path(args.campaign or f"runs/{family.name}-{proposer}-{stamp:%Y%m%d-%H%M%S}")
+        root = _campaign_dir(args, family, proposer)
         # the group's --workers run whole campaigns side by side; each campaign runs one run at a time
         settings = {**_settings(args, saved.get("settings", {})), "workers": 1, "executor": "local"}
         args.workers, args.executor = args.workers or 1, args.executor or "local"

@@ -114,12 +114,10 @@ class CampaignMeta:
     group: dict[str, Any] | None = None  # {"dir": group directory, "repeat": index}
 
     @classmethod
-    def new(
-        cls, family: Family, proposer: str, settings: dict[str, Any], *, group: dict[str, Any] | None = None
-    ) -> CampaignMeta:
+    def new(cls, family: Family, proposer: str, settings: dict[str, Any]) -> CampaignMeta:
         started = session()
         return cls(
-            portable_path(family.path), family.name, proposer, settings, started["started"], (started,), group
+            portable_path(family.path), family.name, proposer, settings, started["started"], (started,)
         )
 
     def resumed(self, family: Family, settings: dict[str, Any]) -> CampaignMeta:

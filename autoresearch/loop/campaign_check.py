@@ -78,8 +78,7 @@ def _read_object(path: Path, name: str) -> tuple[dict[str, Any] | None, Problem 
     return obj, None
 
 
-def _check_family(meta: dict[str, Any]) -> list[Problem]:
-    family_dir = meta.get("family")
+def _check_family(family_dir: Any) -> list[Problem]:
     if not isinstance(family_dir, str) or not Path(family_dir).is_dir():
         return [
             Problem(
@@ -97,18 +96,18 @@ def _check_family(meta: dict[str, Any]) -> list[Problem]:
 
 def _check_meta(paths: CampaignPaths) -> list[Problem]:
     """The problems of campaign.json, of its family and of the campaign's family.json."""
-    meta, problem = _read_object(paths.campaign_json, "campaign.json")
-    if meta is not None:
+    raw, problem = _read_object(paths.campaign_json, "campaign.json")
+    if raw is not None:
         try:
-            CampaignMeta.from_json(meta)
+            meta = CampaignMeta.from_json(raw)
         except CampaignError as err:
             problem = Problem(
                 "campaign.json", str(err).removeprefix("campaign.json: "), "restore it from a backup"
             )
-    problems = [problem] if problem else _check_family(meta)
+    problems = [problem] if problem else _check_family(meta.family)
     if paths.family_json.exists():
         registry, problem = _read_object(paths.family_json, "family.json")
-        family_name = (meta or {}).get("family_name")
+        family_name = (raw or {}).get("family_name")
         if problem:
             problems.append(
                 Problem("family.json", problem.what, "delete it: the loop rewrites it from the records")
