@@ -92,7 +92,8 @@ def test_a_lock_left_by_a_killed_loop_does_not_block(tmp_path):
     proc = subprocess.Popen(
         start, env={**os.environ, "TOY_SLEEP_S": "0.3"}, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
-    wait_for(lambda: holder(root) is not None)
+    # killed once the campaign exists: the lock is taken a moment before campaign.json is written
+    wait_for(lambda: holder(root) is not None and (root / "campaign.json").exists())
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     assert f"pid {proc.pid}" in (root / LOCK_FILE).read_text()  # the file stays; the lock does not
