@@ -121,3 +121,22 @@ def test_every_writing_command_is_refused_while_another_holds_the_campaign(campa
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert f"is in use by pid {os.getpid()} (autoresearch audit)" in err
+
+
+def test_a_loop_killed_before_writing_campaign_json_leaves_a_directory_a_new_start_takes(tmp_path, capsys):
+    toy, root = copy_toy(tmp_path), tmp_path / "c"
+    root.mkdir()
+    (root / LOCK_FILE).write_text("pid 1 loop\n")  # what the killed loop left
+    (root / ".campaign.json.x1y2.tmp").write_text("{")
+    start = ["loop", "--campaign", str(root), "--plain", "--family", str(toy), "--proposer", "random"]
+    assert main([*start, "--max-iters", "2"]) == 0
+    assert json.loads((root / "campaign.json").read_text())["proposer"] == "random"
+    other = tmp_path / "d"
+    other.mkdir()
+    (other / LOCK_FILE).write_text("")
+    (other / "notes.txt").write_text("mine")  # anything else there is someone's: refused
+    capsys.readouterr()
+    assert (
+        main(["loop", "--campaign", str(other), "--plain", "--family", str(toy), "--proposer", "random"]) == 2
+    )
+    assert "already exists" in capsys.readouterr().err

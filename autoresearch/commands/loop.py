@@ -16,7 +16,7 @@ from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json
 from autoresearch.loop import repeats
 from autoresearch.loop.campaign import CampaignError, CampaignMeta, CampaignPaths, portable_path, session
-from autoresearch.loop.campaign_lock import CampaignLock
+from autoresearch.loop.campaign_lock import LOCK_FILE, CampaignLock
 from autoresearch.loop.context import shown_registry
 from autoresearch.loop.early_stop import EARLY_STOP
 from autoresearch.loop.live import make_view
@@ -182,6 +182,12 @@ def _campaign_dir(args: argparse.Namespace, family: Family, proposer: str) -> Pa
     return Path(args.campaign or f"runs/{family.name}-{proposer}-{stamp:%Y%m%d-%H%M%S}")
 
 
+def _never_started(root: Path) -> bool:
+    """True when ``root`` holds nothing a campaign wrote: empty, or only the lock file (and a
+    campaign.json temporary) of a loop killed between taking the lock and writing campaign.json."""
+    return all(p.name == LOCK_FILE or p.name.startswith(".campaign.json.") for p in root.iterdir())
+
+
 def _plan(args: argparse.Namespace) -> tuple[Path, CampaignMeta]:
     """(campaign dir, its campaign.json) for a new or resumed campaign."""
     if args.resume:
@@ -200,7 +206,7 @@ def _plan(args: argparse.Namespace) -> tuple[Path, CampaignMeta]:
     family = resolve_family(args.family)
     proposer = args.proposer or _default_proposer()
     root = _campaign_dir(args, family, proposer)
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+    if root.exists() and (not root.is_dir() or not _never_started(root)):
         raise UsageError(f"{root} already exists; continue it with --resume --campaign {root}")
     return root, CampaignMeta.new(family, proposer, _settings(args, {}))
 
