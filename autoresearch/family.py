@@ -61,6 +61,10 @@ class Family:
         return self.registry.get("feasibility_field")
 
     @property
+    def constraints_field(self) -> str | None:
+        return self.registry.get("constraints_field")
+
+    @property
     def axes(self) -> tuple[str, ...]:
         return tuple(self.registry["axes"])
 
@@ -94,6 +98,17 @@ class Family:
         """A run counts as best or as reaching the target only when its feasibility field is true."""
         field = self.feasibility_field
         return field is None or record.get(field) is True
+
+    def constraints(self, record: dict[str, Any] | None) -> dict[str, float] | None:
+        """The run's graded constraints (name -> value, <= 0 satisfied) from its constraints field,
+        or None when the family declares none or the record lacks a well-formed one."""
+        field = self.constraints_field
+        values = (record or {}).get(field) if field else None
+        if not isinstance(values, dict) or not values:
+            return None
+        if not all(_number(v) for v in values.values()):
+            return None
+        return {str(name): float(v) for name, v in values.items()}
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Family:
@@ -143,6 +158,11 @@ def _check_registry(registry: Any, where: Path) -> SearchSpace:
     field = registry.get("feasibility_field")
     if field is not None and (not isinstance(field, str) or not field):
         raise bad("feasibility_field", "must be a field name or null")
+    constraints = registry.get("constraints_field")
+    if constraints is not None and (not isinstance(constraints, str) or not constraints):
+        raise bad("constraints_field", "must be a field name or null")
+    if constraints is not None and field is None:
+        raise bad("constraints_field", "needs a feasibility_field: the constraints grade that gate")
     seed = registry.get("default_seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool):
         raise bad("default_seed", "must be an integer")

@@ -47,6 +47,7 @@ class ScriptedProposer(Proposer):
         self.usage = usage or Usage()
         self.contexts: list[ProposerContext] = []
         self.tells: list[tuple[dict[str, Any], float | None, bool]] = []
+        self.constraints: list[dict[str, float] | None] = []  # the graded constraints of each tell
 
     def propose(self, context: ProposerContext) -> Proposal:
         self.contexts.append(context)
@@ -61,8 +62,15 @@ class ScriptedProposer(Proposer):
             kind="propose", overrides=item, annotation={"hypothesis": "scripted"}, usage=self.usage
         )
 
-    def tell(self, config: dict[str, Any], metric: float | None, feasible: bool) -> None:
+    def tell(
+        self,
+        config: dict[str, Any],
+        metric: float | None,
+        feasible: bool,
+        constraints: dict[str, float] | None = None,
+    ) -> None:
         self.tells.append((config, metric, feasible))
+        self.constraints.append(constraints)
 
 
 def stop(status: str = "plateau") -> Proposal:

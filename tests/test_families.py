@@ -230,6 +230,16 @@ def test_docking_score_and_strict_gate(monkeypatch):
     slow[:, -1, 3] = 0.06  # at the dock but too fast: not a success
     assert train.docking_metrics(slow, goals)["success_rate"] == 0.0
 
+    # The graded constraints are the same gate: all <= 0 exactly when strict_feasible, and they say
+    # by how much each case misses (family.json's constraints_field, read by the key-free arms).
+    family = Family.load(ROOT / "families" / "docking")
+    for case in (states, grazing, inside, missed, slow):
+        metrics = train.docking_metrics(case, goals)
+        graded = family.constraints(metrics)
+        assert (max(graded.values()) <= 0.0) is metrics["strict_feasible"] is family.is_feasible(metrics)
+    assert family.constraints(train.docking_metrics(missed, goals))["success_shortfall"] == pytest.approx(0.1)
+    assert family.constraints(train.docking_metrics(inside, goals))["clearance_deficit"] == pytest.approx(1.0)
+
 
 @pytest.mark.parametrize("name", FAMILIES)
 def test_family_json_matches_the_contract_and_train_py(name):

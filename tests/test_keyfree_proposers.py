@@ -2,6 +2,7 @@ import itertools
 import json
 import math
 import random
+import statistics
 
 import pytest
 from loop_helpers import TOY_FAMILY
@@ -158,3 +159,61 @@ def test_history_outside_a_narrowed_space_is_kept_out_of_the_model():
     assert [t.params["EPOCHS"] for t in tpe.trials] == [10]
     tpe.tell({**base, "EPOCHS": 7}, None, False)
     assert [t.value for t in tpe.trials] == [1.0, 3.0]  # the crash cost still counts the outside run
+
+
+GATE = {
+    "direction": "minimize",
+    "axes": ["a"],
+    "search_space": {
+        "X": {"type": "real", "low": 0.0, "high": 1.0, "axis": "a"},
+        "Y": {"type": "real", "low": 0.0, "high": 1.0, "axis": "a"},
+    },
+}
+
+
+def test_graded_constraints_are_the_trials_constraints_and_failures_take_the_worst():
+    tpe = TPEProposer(GATE, seed=0)
+    tpe.tell({"X": 0.2, "Y": 0.5}, 3.0, False, {"shortfall": 0.7, "violation": 0.0})
+    tpe.tell({"X": 0.5, "Y": 0.5}, None, False)
+    tpe.tell({"X": 0.95, "Y": 0.5}, 1.0, True, {"shortfall": -0.05, "violation": 0.0})
+    assert [t.constraints for t in tpe.trials] == [
+        {"shortfall": 0.7, "violation": 0.0},
+        {"shortfall": 0.7, "violation": 0.0},  # the failure: the worst of each seen
+        {"shortfall": -0.05, "violation": 0.0},
+    ]
+    met = TPEProposer(GATE, seed=0)
+    met.tell({"X": 0.95, "Y": 0.5}, 1.0, True, {"shortfall": -0.05})
+    met.tell({"X": 0.5, "Y": 0.5}, None, False)
+    assert met.trials[1].constraints == {"shortfall": 1.0}  # a failure is never feasible
+    tpe.tell({"X": 0.3, "Y": 0.1}, 2.0, False)  # a record without graded constraints: all 0/1 again
+    assert [t.constraints for t in tpe.trials] == [{"feasible": v} for v in (1.0, 1.0, 0.0, 1.0)]
+
+
+@pytest.mark.parametrize("cls", [TPEProposer, GPProposer])
+def test_graded_constraints_steer_the_search_towards_feasibility_before_any_run_is_feasible(cls):
+    """Feasible needs X >= 0.9 and Y >= 0.9; no draw so far is, and the metric says nothing about
+    either. Told how far each draw missed, the model-based arms move towards that corner; told
+    only 0/1 they cannot tell one miss from another."""
+
+    def proposals(graded: bool) -> list[float]:
+        sums = []
+        for seed in range(8):
+            proposer = cls(GATE, seed=seed, n_startup_trials=4)
+            rng = random.Random(seed)
+            history = []
+            while len(history) < 16:
+                config = {"X": rng.random(), "Y": rng.random()}
+                shortfall = max(0.9 - config["X"], 0.0) + max(0.9 - config["Y"], 0.0)
+                if shortfall == 0.0:
+                    continue
+                proposer.tell(
+                    config, rng.uniform(1.0, 2.0), False, {"shortfall": shortfall} if graded else None
+                )
+                history.append(config)
+            proposal = proposer.propose(context(history, iteration=17)).overrides
+            sums.append(proposal["X"] + proposal["Y"])
+        return sums
+
+    graded, blind = proposals(True), proposals(False)  # X + Y of each seed's next proposal
+    assert statistics.mean(graded) > 1.6, graded  # the corner is at 1.8 to 2.0
+    assert statistics.mean(graded) > statistics.mean(blind) + 0.5, (graded, blind)

@@ -110,6 +110,16 @@ def test_failed_runs_infeasible_runs_and_proposer_errors(toy, tmp_path):
     assert records[-1]["trigger"] == "max_iters"  # the infeasible run's low loss did not count as the target
     assert proposer.tells[1] == (failed["config"], None, False)
     assert proposer.tells[2] == (infeasible["config"], infeasible["metric"], False)
+    # The family's graded constraints reach the proposer with each run that has a record, and again
+    # when a resumed campaign tells its history.
+    excess = infeasible["config"]["LEARNING_RATE"] / (1 - infeasible["config"]["MOMENTUM"]) - 0.5
+    assert proposer.constraints[1] is None and proposer.constraints[2] == {
+        "step_excess": pytest.approx(excess)
+    }
+    assert proposer.constraints[0]["step_excess"] < 0 < excess
+    resumed = ScriptedProposer([])
+    run_loop(toy, resumed, tmp_path / "c", max_iters=6, max_failures=5)
+    assert resumed.constraints[: len(proposer.constraints)] == proposer.constraints
 
 
 def test_spend_is_recorded_and_accumulated(toy, tmp_path):

@@ -88,3 +88,24 @@ def test_output_paths_that_are_files_are_one_line_errors(tmp_path, capsys):
         assert main(argv) == 2, argv
         one_line_error(capsys, argv[0])
     assert afile.read_text() == "x"
+
+
+def test_constraints_field_is_checked_and_read_only_when_well_formed(toy):
+    registry = json.loads((toy / "family.json").read_text())
+    (toy / "family.json").write_text(
+        json.dumps({**registry, "feasibility_field": None, "constraints_field": "c"})
+    )
+    with pytest.raises(FamilyError, match=r"'constraints_field' needs a feasibility_field"):
+        Family.load(toy)
+    (toy / "family.json").write_text(
+        json.dumps({**registry, "feasibility_field": "ok", "constraints_field": 3})
+    )
+    with pytest.raises(FamilyError, match=r"'constraints_field' must be a field name or null"):
+        Family.load(toy)
+    (toy / "family.json").write_text(
+        json.dumps({**registry, "feasibility_field": "ok", "constraints_field": "c"})
+    )
+    family = Family.load(toy)
+    assert family.constraints({"c": {"gap": 0.25, "rate": 0}}) == {"gap": 0.25, "rate": 0.0}
+    for record in ({}, {"c": {}}, {"c": [0.1]}, {"c": {"gap": "far"}}, {"c": {"gap": float("nan")}}, None):
+        assert family.constraints(record) is None  # an older or malformed record: the 0/1 gate only

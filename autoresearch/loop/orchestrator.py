@@ -136,7 +136,10 @@ class Orchestrator:
             if record["status"] in RUN_STATUSES:
                 ok = record["status"] == "ran"
                 self.proposer.tell(
-                    record["config"], record["metric"] if ok else None, bool(ok and record["feasible"])
+                    record["config"],
+                    record["metric"] if ok else None,
+                    bool(ok and record["feasible"]),
+                    self.family.constraints(record.get("record")) if ok else None,
                 )
         self._sync_best()
         self._in_flight: dict[str, dict[str, Any]] = {}  # run_id -> intent, in launch order
@@ -559,7 +562,12 @@ class Orchestrator:
         if self.stopper is not None:
             self.stopper.finish(record)
         ok = result.ok
-        self.proposer.tell(record["config"], result.metric if ok else None, bool(ok and record["feasible"]))
+        self.proposer.tell(
+            record["config"],
+            result.metric if ok else None,
+            bool(ok and record["feasible"]),
+            self.family.constraints(result.record) if ok else None,
+        )
         self._sync_best()
 
     def _record(self, iteration: int, proposer: str, **fields: Any) -> dict[str, Any]:

@@ -132,9 +132,16 @@ class Proposer(ABC):
     @abstractmethod
     def propose(self, context: ProposerContext) -> Proposal: ...
 
-    def tell(self, config: dict[str, Any], metric: float | None, feasible: bool) -> None:  # noqa: B027
+    def tell(  # noqa: B027
+        self,
+        config: dict[str, Any],
+        metric: float | None,
+        feasible: bool,
+        constraints: dict[str, float] | None = None,
+    ) -> None:
         """Outcome of an experiment that ran: its full configuration, its metric (None when it failed
-        or was stopped early) and feasibility. Stateless proposers ignore it."""
+        or was stopped early), feasibility and, when the family reports them, its graded constraints
+        (Family.constraints). Stateless proposers ignore it."""
 
 
 def projected_cost(proposer: Proposer, context: ProposerContext) -> float:

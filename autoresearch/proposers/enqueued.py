@@ -57,5 +57,11 @@ class EnqueuedProposer(Proposer):
                 return full_config_proposal(self.space, config, context, HYPOTHESIS)
         return self.inner.propose(context)
 
-    def tell(self, config: dict[str, Any], metric: float | None, feasible: bool) -> None:
-        self.inner.tell(config, metric, feasible)
+    def tell(
+        self,
+        config: dict[str, Any],
+        metric: float | None,
+        feasible: bool,
+        constraints: dict[str, float] | None = None,
+    ) -> None:
+        self.inner.tell(config, metric, feasible, constraints)

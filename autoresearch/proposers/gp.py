@@ -1,5 +1,6 @@
 """A key-free Gaussian-process arm: Optuna's GPSampler (log expected improvement, constrained when a
-run is infeasible), for budgets of tens of experiments over mixed int/real/log/categorical spaces.
+run is infeasible: by the family's graded constraints where it reports them, which GPSampler models
+as a probability of feasibility), for budgets of tens of experiments over mixed spaces.
 
 It keeps everything of the TPE arm (autoresearch.proposers.tpe) but the sampler: a fresh in-memory
 study per turn filled with the outcomes told so far, failures at the crash cost, the sampler seeded

@@ -11,6 +11,15 @@ ranks below every feasible trial (penalised, yet its location still informs the 
 failed or timed-out run is told as an infeasible trial at the worst metric seen so far (SMAC's
 "crash cost"), so TPE learns to avoid regions that diverge or overrun the per-run time limit;
 before any run has succeeded there is no worst metric and it is a FAIL trial, which TPE ignores.
+
+Constraints: when the family's runs report graded constraints (``constraints_field``, Optuna's
+convention: a value <= 0 is satisfied), those are the trial's constraints, so that before any
+run is feasible TPE ranks infeasible runs by how far they miss and the GP arm models the
+probability of feasibility. With a 0/1 constraint every infeasible run ties: Optuna's TPE then
+keeps the earliest runs as its "good" group and the GP's feasibility model is flat, so both arms
+search blind until a draw happens to be feasible. A failed run takes the worst value seen of
+each constraint (1.0 each while every run has met them all); runs without graded constraints
+(older records) make every trial 0/1 again.
 Without the crash cost, a search space with slow corners keeps TPE in its random start-up phase
 (FAIL trials do not count towards it) and spends the budget on timeouts. TPE searches the full
 declared bounds unless ``space="random-range"`` (autoresearch.space.SPACES).
@@ -22,7 +31,7 @@ import hashlib
 import math
 import random
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import optuna
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
@@ -33,6 +42,13 @@ from autoresearch.proposers.random_search import MAX_DRAWS, full_config_proposal
 from autoresearch.space import ParamSpec, SearchSpace, canonical_key
 
 MAX_ASKS = 20  # re-asks with a new seed when TPE suggests a configuration already run
+
+
+class Outcome(NamedTuple):
+    config: dict[str, Any]
+    metric: float | None  # None: the run failed
+    feasible: bool
+    constraints: dict[str, float] | None  # graded, <= 0 satisfied; None when the family has none
 
 
 def _distribution(param: ParamSpec) -> BaseDistribution:
@@ -64,11 +80,27 @@ class TPEProposer(Proposer):
         self.seed = seed
         self.n_startup_trials = n_startup_trials
         self.distributions = {name: _distribution(p) for name, p in self.space.params.items()}
-        self.outcomes: list[tuple[dict[str, Any], float | None, bool]] = []
+        self.outcomes: list[Outcome] = []
 
-    def tell(self, config: dict[str, Any], metric: float | None, feasible: bool) -> None:
+    def tell(
+        self,
+        config: dict[str, Any],
+        metric: float | None,
+        feasible: bool,
+        constraints: dict[str, float] | None = None,
+    ) -> None:
         """``metric`` is None for a failed run."""
-        self.outcomes.append((self.family_space.validate_full(config), metric, feasible))
+        self.outcomes.append(Outcome(self.family_space.validate_full(config), metric, feasible, constraints))
+
+    def _constraints_of_failures(self) -> dict[str, float] | None:
+        """The graded constraints a failed run is told (the worst of each seen), or None when the
+        successful runs do not all report the same graded constraints."""
+        graded = [o.constraints for o in self.outcomes if o.metric is not None]
+        if not graded or any(c is None or c.keys() != graded[0].keys() for c in graded):
+            return None
+        worst = {name: max(c[name] for c in graded) for name in graded[0]}
+        # A failure is infeasible: while every run has met every constraint, it is told 1.0 each.
+        return worst if any(v > 0 for v in worst.values()) else dict.fromkeys(worst, 1.0)
 
     @property
     def trials(self) -> list[FrozenTrial]:
@@ -76,25 +108,30 @@ class TPEProposer(Proposer):
 
         An outcome outside it (a baseline or enqueued run beyond a narrowed range) cannot be an
         Optuna trial of these distributions; it still sets the crash cost."""
-        metrics = [metric for _, metric, _ in self.outcomes if metric is not None]
+        metrics = [o.metric for o in self.outcomes if o.metric is not None]
         crash_cost = (max if self.study_direction == "minimize" else min)(metrics) if metrics else None
+        crash_constraints = self._constraints_of_failures()
         trials = []
-        for params, metric, feasible in self.outcomes:
-            if not self.space.contains(params):
+        for outcome in self.outcomes:
+            if not self.space.contains(outcome.config):
                 continue
-            if metric is None and crash_cost is None:
+            if outcome.metric is None and crash_cost is None:
                 trials.append(
                     optuna.trial.create_trial(
-                        state=TrialState.FAIL, params=params, distributions=self.distributions
+                        state=TrialState.FAIL, params=outcome.config, distributions=self.distributions
                     )
                 )
                 continue
+            if crash_constraints is None:
+                constraints = {"feasible": 0.0 if outcome.metric is not None and outcome.feasible else 1.0}
+            else:
+                constraints = crash_constraints if outcome.metric is None else outcome.constraints
             trials.append(
                 optuna.trial.create_trial(
-                    value=crash_cost if metric is None else metric,
-                    params=params,
+                    value=crash_cost if outcome.metric is None else outcome.metric,
+                    params=outcome.config,
                     distributions=self.distributions,
-                    constraints={"feasible": 0.0 if metric is not None and feasible else 1.0},
+                    constraints=constraints,
                 )
             )
         return trials

@@ -280,6 +280,12 @@ def docking_metrics(states: np.ndarray, goals: np.ndarray) -> dict:
         "strict_feasible": bool(
             success_rate >= SUCCESS_GATE and mean_violation == 0.0 and min_clearance >= 0.0
         ),
+        # The same gate, graded (each <= 0 when met): a key-free searcher learns how far a run misses.
+        "constraints": {
+            "success_shortfall": SUCCESS_GATE - success_rate,
+            "violation_rate": mean_violation,
+            "clearance_deficit": -min_clearance,
+        },
         "violating_starts": int((violation_rate > 0).sum()),
         "median_terminal_distance": float(np.median(terminal_distance)),
         "max_terminal_distance": float(terminal_distance.max()),

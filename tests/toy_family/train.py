@@ -59,6 +59,7 @@ def train(config: dict, seed: int) -> dict:
     return {
         "loss": loss + noise,
         "feasible": effective_step <= MAX_EFFECTIVE_STEP,
+        "constraints": {"step_excess": effective_step - MAX_EFFECTIVE_STEP},  # graded: <= 0 is feasible
         "effective_step": effective_step,
         "best_train_loss": loss,
         "n_params": 10 * config["BATCH_SIZE"],
