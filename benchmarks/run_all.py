@@ -55,6 +55,9 @@ EARLY_STOP_PAIRS = [
     ("rendezvous TPE, 40 experiments", "results/rendezvous/tpe", "results/early_stop/rdv-tpe-asha"),
 ]
 
+# Committed key-free evidence campaigns (results/evidence/run.sh), one per family.
+EVIDENCE_CAMPAIGNS = ("results/evidence/rendezvous-gp", "results/evidence/docking-gp")
+
 PARALLEL_LOG = "results/logs/bench_loop_parallel.txt"  # bench_loop_parallel.py's committed output
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
@@ -285,6 +288,57 @@ def early_stop_rows() -> list[Row]:
     return rows
 
 
+def evidence_rows() -> list[Row]:
+    """Experiments and wall-clock to the family's target (single seed, feasible runs) in each
+    committed evidence campaign, and its best candidate's reseeded verification (nothing is run)."""
+    rows = []
+    for where in EVIDENCE_CAMPAIGNS:
+        root = ROOT / where
+        if not (root / "proposals.jsonl").is_file():
+            rows.append((f"key-free evidence campaign {root.name}", "not run", "", f"needs {where}"))
+            continue
+        meta, registry = read_json(root / "campaign.json"), read_json(root / "family.json")
+        settings, direction, target = meta["settings"], registry["direction"], registry["target"]
+        records = read_jsonl(root / "proposals.jsonl")
+        experiments = [r for r in records if r["status"] in ("ran", "failed", "pruned")]
+        hit = next(
+            (
+                (n, r["elapsed_s"])
+                for n, r in enumerate(experiments, 1)
+                if r["status"] == "ran"
+                and r["feasible"]
+                and (r["metric"] <= target if direction == "minimize" else r["metric"] >= target)
+            ),
+            None,
+        )
+        measured = (
+            f"target {target:g} after {hit[0]} of {len(experiments)} finished experiments, {hit[1]:.0f} s"
+            if hit
+            else f"target {target:g} not reached in {len(experiments)} experiments, {records[-1]['elapsed_s']:.0f} s"
+        )
+        audit = read_json(root / "audit.json") if (root / "audit.json").is_file() else {}
+        reseeded = [
+            c for c in (audit.get("verify") or {}).get("candidates", []) if c.get("sigma_r") is not None
+        ]
+        verdict = (
+            "; ".join(
+                f"{c['config_id']} reseeded {c['mu_r']:.4g} +- {c['sigma_r']:.2g} (n={c['n']}): {c['reason']}"
+                for c in reseeded
+            )
+            or "no candidate reseeded"
+        )
+        rows.append(
+            (
+                f"key-free evidence campaign, {registry['name']}: {meta['proposer']} over {settings['space']}",
+                measured,
+                verdict,
+                f"{settings['workers']} workers, --early-stop {settings['early_stop']}, "
+                f"{settings['timeout_per_run']:g} s cap; {where}",
+            )
+        )
+    return rows
+
+
 def group_space(group: Path) -> str:
     """The space a group of repeats searched (before --space: its proposer's default)."""
     meta = read_json(group / "repeats.json")
@@ -383,6 +437,7 @@ def main() -> int:
         progress("key-free arms and early stopping, from results/")
         rows += compare_rows()
         rows += early_stop_rows()
+        rows += evidence_rows()
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"
     print(text, end="")
