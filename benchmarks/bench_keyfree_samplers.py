@@ -29,7 +29,7 @@ import optuna
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from autoresearch.proposers import make_proposer  # noqa: E402
-from autoresearch.proposers.base import ProposerContext  # noqa: E402
+from autoresearch.proposers.base import ProposerContext, RunOutcome  # noqa: E402
 from autoresearch.proposers.tpe import TPEProposer, _derived_seed  # noqa: E402
 from autoresearch.space import NUMERIC_TYPES, ParamSpec  # noqa: E402
 
@@ -95,7 +95,7 @@ def run_arm(name: str, registry: dict[str, Any], family: str, seed: int, trials:
             config = proposer.propose(context).overrides
             ask_s += time.perf_counter() - start
         value = objective(space, family, config) if space.contains(config) else None
-        proposer.tell(config, value, value is not None)
+        proposer.tell(RunOutcome(config, value, value is not None))
         history.append(config)
         best = min(best, value if value is not None else math.inf)
         bests.append(best)

@@ -25,7 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from autoresearch.proposers import make_proposer  # noqa: E402
-from autoresearch.proposers.base import ProposerContext  # noqa: E402
+from autoresearch.proposers.base import ProposerContext, RunOutcome  # noqa: E402
 
 ARMS = ("tpe", "tpe-random", "hand")
 
@@ -76,12 +76,12 @@ def main() -> None:
     baseline = registry["baseline"]["config"]
     for seed in range(args.seeds):
         proposer = make_proposer(args.proposer, registry, seed=seed, space=args.space)
-        proposer.tell(baseline, registry["baseline"]["metric"], True)  # as the loop tells it
+        proposer.tell(RunOutcome(baseline, registry["baseline"]["metric"], True))  # as the loop tells it
         history, priced = [baseline], []
         for iteration in range(2, args.draws + 2):
             context = ProposerContext.of_configs(iteration, registry, history, baseline)
             config = proposer.propose(context).overrides
-            proposer.tell(config, None, False)  # start-up draws do not depend on the outcomes
+            proposer.tell(RunOutcome(config, None, False))  # start-up draws do not depend on the outcomes
             history.append(config)
             seconds = 2.0 + math.exp(np.dot(cost, cost_features(config)))
             priced.append(f"({seconds:.0f} s, {math.exp(np.dot(quality, metric_features(config))):.2f} m)")

@@ -10,7 +10,7 @@ from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator, Outcome
 from autoresearch.loop.stopping import Budgets
-from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, Usage
+from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, RunOutcome, Usage
 
 TOY_FAMILY = Path(__file__).parent / "toy_family"
 
@@ -62,15 +62,9 @@ class ScriptedProposer(Proposer):
             kind="propose", overrides=item, annotation={"hypothesis": "scripted"}, usage=self.usage
         )
 
-    def tell(
-        self,
-        config: dict[str, Any],
-        metric: float | None,
-        feasible: bool,
-        constraints: dict[str, float] | None = None,
-    ) -> None:
-        self.tells.append((config, metric, feasible))
-        self.constraints.append(constraints)
+    def tell(self, outcome: RunOutcome) -> None:
+        self.tells.append((outcome.config, outcome.metric, outcome.feasible))
+        self.constraints.append(outcome.constraints)
 
 
 def stop(status: str = "plateau") -> Proposal:

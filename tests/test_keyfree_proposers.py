@@ -8,7 +8,7 @@ import pytest
 from loop_helpers import TOY_FAMILY
 
 from autoresearch.proposers import make_proposer
-from autoresearch.proposers.base import ProposerContext
+from autoresearch.proposers.base import ProposerContext, RunOutcome
 from autoresearch.proposers.gp import GPProposer
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tpe import TPEProposer
@@ -41,10 +41,10 @@ def context(history, iteration=2, running=()):
 def test_never_repeats_a_seen_config_when_it_can_avoid_it(cls):
     proposer = cls(TINY, seed=0)
     for config in ALL_TINY[:3]:
-        proposer.tell(config, 1.0, True)
+        proposer.tell(RunOutcome(config, 1.0, True))
     proposal = proposer.propose(context(ALL_TINY[:3]))
     assert proposal.kind == "propose" and proposal.overrides == ALL_TINY[3]
-    proposer.tell(ALL_TINY[3], 1.0, True)
+    proposer.tell(RunOutcome(ALL_TINY[3], 1.0, True))
     exhausted = proposer.propose(context(ALL_TINY))
     assert exhausted.kind == "invalid" and "no unseen configuration" in exhausted.error
     # An experiment still running counts as seen: the last unseen one is not proposed twice.
@@ -65,11 +65,11 @@ def test_tpe_observations_failures_and_infeasible_runs():
     registry = json.loads((TOY_FAMILY / "family.json").read_text())
     tpe = TPEProposer(registry, seed=1, n_startup_trials=2)
     base = json.loads((TOY_FAMILY / "family.json").read_text())["baseline"]["config"]
-    tpe.tell({**base, "EPOCHS": 1}, None, False)
+    tpe.tell(RunOutcome({**base, "EPOCHS": 1}, None, False))
     assert [t.state.name for t in tpe.trials] == ["FAIL"]  # nothing succeeded yet: no crash cost
-    tpe.tell(base, 0.8, True)
-    tpe.tell({**base, "EPOCHS": 0}, None, False)
-    tpe.tell({**base, "MOMENTUM": 0.99, "LEARNING_RATE": 0.05}, 0.5, False)
+    tpe.tell(RunOutcome(base, 0.8, True))
+    tpe.tell(RunOutcome({**base, "EPOCHS": 0}, None, False))
+    tpe.tell(RunOutcome({**base, "MOMENTUM": 0.99, "LEARNING_RATE": 0.05}, 0.5, False))
     trials = tpe.trials
     assert [t.state.name for t in trials] == ["COMPLETE"] * 4
     # Failures sit at the worst metric seen (the toy minimises: the highest), marked infeasible.
@@ -86,7 +86,7 @@ def test_tpe_observations_failures_and_infeasible_runs():
     assert first.kind == "propose" and first.overrides == again.overrides  # a function of seed and history
     assert set(first.overrides) == set(base)
     with pytest.raises(ValueError):
-        tpe.tell({"EPOCHS": 3}, 1.0, True)  # tell() needs the full configuration
+        tpe.tell(RunOutcome({"EPOCHS": 3}, 1.0, True))  # tell() needs the full configuration
 
 
 def test_make_proposer():
@@ -108,7 +108,7 @@ def toy_outcomes(proposer, n, seed=0):
     configs = [proposer.family_space.sample(rng) for _ in range(n)]
     for i, config in enumerate(configs):
         metric = None if i == 3 else abs(math.log10(config["LEARNING_RATE"]) + 2) + config["DROPOUT"]
-        proposer.tell(config, metric, True)
+        proposer.tell(RunOutcome(config, metric, True))
     return configs
 
 
@@ -154,10 +154,10 @@ def test_history_outside_a_narrowed_space_is_kept_out_of_the_model():
     registry = json.loads((TOY_FAMILY / "family.json").read_text())
     tpe = TPEProposer(registry, seed=0, space="random-range")
     base = registry["baseline"]["config"]
-    tpe.tell({**base, "EPOCHS": 60}, 3.0, True)  # outside random_range [5, 50]
-    tpe.tell(base, 1.0, True)
+    tpe.tell(RunOutcome({**base, "EPOCHS": 60}, 3.0, True))  # outside random_range [5, 50]
+    tpe.tell(RunOutcome(base, 1.0, True))
     assert [t.params["EPOCHS"] for t in tpe.trials] == [10]
-    tpe.tell({**base, "EPOCHS": 7}, None, False)
+    tpe.tell(RunOutcome({**base, "EPOCHS": 7}, None, False))
     assert [t.value for t in tpe.trials] == [1.0, 3.0]  # the crash cost still counts the outside run
 
 
@@ -173,19 +173,21 @@ GATE = {
 
 def test_graded_constraints_are_the_trials_constraints_and_failures_take_the_worst():
     tpe = TPEProposer(GATE, seed=0)
-    tpe.tell({"X": 0.2, "Y": 0.5}, 3.0, False, {"shortfall": 0.7, "violation": 0.0})
-    tpe.tell({"X": 0.5, "Y": 0.5}, None, False)
-    tpe.tell({"X": 0.95, "Y": 0.5}, 1.0, True, {"shortfall": -0.05, "violation": 0.0})
+    tpe.tell(RunOutcome({"X": 0.2, "Y": 0.5}, 3.0, False, {"shortfall": 0.7, "violation": 0.0}))
+    tpe.tell(RunOutcome({"X": 0.5, "Y": 0.5}, None, False))
+    tpe.tell(RunOutcome({"X": 0.95, "Y": 0.5}, 1.0, True, {"shortfall": -0.05, "violation": 0.0}))
     assert [t.constraints for t in tpe.trials] == [
         {"shortfall": 0.7, "violation": 0.0},
         {"shortfall": 0.7, "violation": 0.0},  # the failure: the worst of each seen
         {"shortfall": -0.05, "violation": 0.0},
     ]
     met = TPEProposer(GATE, seed=0)
-    met.tell({"X": 0.95, "Y": 0.5}, 1.0, True, {"shortfall": -0.05})
-    met.tell({"X": 0.5, "Y": 0.5}, None, False)
+    met.tell(RunOutcome({"X": 0.95, "Y": 0.5}, 1.0, True, {"shortfall": -0.05}))
+    met.tell(RunOutcome({"X": 0.5, "Y": 0.5}, None, False))
     assert met.trials[1].constraints == {"shortfall": 1.0}  # a failure is never feasible
-    tpe.tell({"X": 0.3, "Y": 0.1}, 2.0, False)  # a record without graded constraints: all 0/1 again
+    tpe.tell(
+        RunOutcome({"X": 0.3, "Y": 0.1}, 2.0, False)
+    )  # a record without graded constraints: all 0/1 again
     assert [t.constraints for t in tpe.trials] == [{"feasible": v} for v in (1.0, 1.0, 0.0, 1.0)]
 
 
@@ -207,7 +209,9 @@ def test_graded_constraints_steer_the_search_towards_feasibility_before_any_run_
                 if shortfall == 0.0:
                     continue
                 proposer.tell(
-                    config, rng.uniform(1.0, 2.0), False, {"shortfall": shortfall} if graded else None
+                    RunOutcome(
+                        config, rng.uniform(1.0, 2.0), False, {"shortfall": shortfall} if graded else None
+                    )
                 )
                 history.append(config)
             proposal = proposer.propose(context(history, iteration=17)).overrides

@@ -11,7 +11,7 @@ from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
 from autoresearch.loop.campaign import CampaignState
 from autoresearch.loop.campaign_check import check_campaign
-from autoresearch.proposers.base import Proposal, ProposerContext
+from autoresearch.proposers.base import Proposal, ProposerContext, RunOutcome
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tpe import TPEProposer
 
@@ -77,7 +77,7 @@ def test_random_and_tpe_skip_and_pend_the_running_configurations(toy):
     context = ProposerContext(13, (), "", registry, None, tuple(history), family.baseline_config, running=())
     tpe = TPEProposer(registry, seed=0, n_startup_trials=5)
     for item in history:
-        tpe.tell(item["config"], item["loss"], True)
+        tpe.tell(RunOutcome(item["config"], item["loss"], True))
     # What TPE would suggest first becomes the run in flight: asked again, it must move away.
     first = tpe.propose(context).overrides
     running = [{"iteration": 13, "run_id": "it0013", "overrides": first, "config": first, "hypothesis": None}]

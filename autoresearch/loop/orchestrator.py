@@ -57,7 +57,7 @@ from autoresearch.loop.runner import (
 )
 from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, spend_trigger, stop_gate
 from autoresearch.loop.verdicts import run_verdict
-from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer, projected_cost
+from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer, RunOutcome, projected_cost
 from autoresearch.proposers.retry import RetryBudgetSpent, call_with_retries
 from autoresearch.space import ValidationError, canonical_key
 
@@ -135,12 +135,7 @@ class Orchestrator:
         for record in self.state.records:
             if record["status"] in RUN_STATUSES:
                 ok = record["status"] == "ran"
-                self.proposer.tell(
-                    record["config"],
-                    record["metric"] if ok else None,
-                    bool(ok and record["feasible"]),
-                    self.family.constraints(record.get("record")) if ok else None,
-                )
+                self.proposer.tell(self._run_outcome(record, ok))
         self._sync_best()
         self._in_flight: dict[str, dict[str, Any]] = {}  # run_id -> intent, in launch order
         self._done: queue.Queue[tuple[dict[str, Any], RunResult | BaseException]] = queue.Queue()
@@ -561,14 +556,15 @@ class Orchestrator:
         self._commit(record)
         if self.stopper is not None:
             self.stopper.finish(record)
-        ok = result.ok
-        self.proposer.tell(
-            record["config"],
-            result.metric if ok else None,
-            bool(ok and record["feasible"]),
-            self.family.constraints(result.record) if ok else None,
-        )
+        self.proposer.tell(self._run_outcome(record, result.ok))
         self._sync_best()
+
+    def _run_outcome(self, record: dict[str, Any], ok: bool) -> RunOutcome:
+        """What the proposer is told of a run record (a failed or stopped run has no metric)."""
+        if not ok:
+            return RunOutcome(record["config"], None, False)
+        constraints = self.family.constraints(record["record"])
+        return RunOutcome(record["config"], record["metric"], bool(record["feasible"]), constraints)
 
     def _record(self, iteration: int, proposer: str, **fields: Any) -> dict[str, Any]:
         return new_record(

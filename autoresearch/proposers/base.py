@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 
 @dataclass(frozen=True)
@@ -124,6 +124,15 @@ class FatalAPIError(Exception):
         self.kind = kind  # "auth" or "spend_limit"
 
 
+class RunOutcome(NamedTuple):
+    """What a proposer is told of an experiment that ran."""
+
+    config: dict[str, Any]  # the full configuration
+    metric: float | None  # None when the run failed or was stopped early
+    feasible: bool
+    constraints: dict[str, float] | None = None  # graded, <= 0 met (Family.constraints); None: none
+
+
 class Proposer(ABC):
     """Strategy interface. ``tell`` reports the outcome of the last proposal."""
 
@@ -132,16 +141,8 @@ class Proposer(ABC):
     @abstractmethod
     def propose(self, context: ProposerContext) -> Proposal: ...
 
-    def tell(  # noqa: B027
-        self,
-        config: dict[str, Any],
-        metric: float | None,
-        feasible: bool,
-        constraints: dict[str, float] | None = None,
-    ) -> None:
-        """Outcome of an experiment that ran: its full configuration, its metric (None when it failed
-        or was stopped early), feasibility and, when the family reports them, its graded constraints
-        (Family.constraints). Stateless proposers ignore it."""
+    def tell(self, outcome: RunOutcome) -> None:  # noqa: B027
+        """The outcome of an experiment that ran. Stateless proposers ignore it."""
 
 
 def projected_cost(proposer: Proposer, context: ProposerContext) -> float:

@@ -13,7 +13,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from autoresearch.proposers.base import Proposal, Proposer, ProposerContext
+from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, RunOutcome
 from autoresearch.proposers.random_search import full_config_proposal, seen_configs
 from autoresearch.space import SearchSpace, ValidationError, canonical_key
 
@@ -57,11 +57,5 @@ class EnqueuedProposer(Proposer):
                 return full_config_proposal(self.space, config, context, HYPOTHESIS)
         return self.inner.propose(context)
 
-    def tell(
-        self,
-        config: dict[str, Any],
-        metric: float | None,
-        feasible: bool,
-        constraints: dict[str, float] | None = None,
-    ) -> None:
-        self.inner.tell(config, metric, feasible, constraints)
+    def tell(self, outcome: RunOutcome) -> None:
+        self.inner.tell(outcome)

@@ -31,24 +31,17 @@ import hashlib
 import math
 import random
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import optuna
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import FrozenTrial, TrialState
 
-from autoresearch.proposers.base import Proposal, Proposer, ProposerContext
+from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, RunOutcome
 from autoresearch.proposers.random_search import MAX_DRAWS, full_config_proposal, seen_configs
 from autoresearch.space import ParamSpec, SearchSpace, canonical_key
 
 MAX_ASKS = 20  # re-asks with a new seed when TPE suggests a configuration already run
-
-
-class Outcome(NamedTuple):
-    config: dict[str, Any]
-    metric: float | None  # None: the run failed
-    feasible: bool
-    constraints: dict[str, float] | None  # graded, <= 0 satisfied; None when the family has none
 
 
 def _distribution(param: ParamSpec) -> BaseDistribution:
@@ -80,17 +73,10 @@ class TPEProposer(Proposer):
         self.seed = seed
         self.n_startup_trials = n_startup_trials
         self.distributions = {name: _distribution(p) for name, p in self.space.params.items()}
-        self.outcomes: list[Outcome] = []
+        self.outcomes: list[RunOutcome] = []
 
-    def tell(
-        self,
-        config: dict[str, Any],
-        metric: float | None,
-        feasible: bool,
-        constraints: dict[str, float] | None = None,
-    ) -> None:
-        """``metric`` is None for a failed run."""
-        self.outcomes.append(Outcome(self.family_space.validate_full(config), metric, feasible, constraints))
+    def tell(self, outcome: RunOutcome) -> None:
+        self.outcomes.append(outcome._replace(config=self.family_space.validate_full(outcome.config)))
 
     def _constraints_of_failures(self) -> dict[str, float] | None:
         """The graded constraints a failed run is told (the worst of each seen), or None when the
