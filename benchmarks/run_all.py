@@ -48,7 +48,11 @@ ENV_IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v0")
 NATIVE = NATIVE_ENVS[0]
 BASELINE_TIMEOUT_S, TUNED_TIMEOUT_S = 300.0, 1800.0
 # Committed groups of repeats (loop --repeats) per family: (directory, prefix of the arm groups).
-COMPARE_GROUPS = {"rendezvous": ("results/compare-rendezvous", "rdv"), "docking": ("results/compare", "dock")}
+COMPARE_GROUPS = {
+    "rendezvous": ("results/compare-rendezvous", "rdv"),
+    "docking": ("results/compare", "dock"),
+    "docking, GP told graded constraints or 0/1": ("results/constraints-ab", "dock-gp"),
+}
 
 # Committed campaigns of one search without and with --early-stop: (label, without, with).
 EARLY_STOP_PAIRS = [
@@ -358,7 +362,7 @@ def compare_rows() -> list[Row]:
         arms = load_arms([(g.name.removeprefix(prefix + "-"), [g]) for g in groups])
         registry = common_family(arms)
         direction = 1 if registry["direction"] == "maximize" else -1
-        budget = min(r.n for arm in arms for r in arm.repeats)
+        budget = max(r.n for arm in arms for r in arm.repeats)  # as compare: a stopped repeat keeps its best
         noise = noise_reference(arms, None)
         targets = [("target", registry["target"])]
         if noise:  # the audit's gate: 2 sigma of seed noise better than the baseline's seed mean
