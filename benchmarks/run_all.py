@@ -34,7 +34,7 @@ from bench_envs import NATIVE_ENVS, SYNC_ENVS, bench_single, bench_vector
 from bench_experts_cbf import cbf_measure, docking_expert_run, rendezvous_expert_time
 from bench_loop_parallel import campaign_wall
 
-from autoresearch.compare.inputs import common_family, load_arms, noise_reference
+from autoresearch.compare.inputs import common_family, load_arms, noise_reference, read_repeat
 from autoresearch.compare.stats import best_so_far, experiments_to_target, median_experiments_to_target
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
@@ -301,24 +301,15 @@ def evidence_rows() -> list[Row]:
         if not (root / "proposals.jsonl").is_file():
             rows.append((f"key-free evidence campaign {root.name}", "not run", "", f"needs {where}"))
             continue
-        meta, registry = read_json(root / "campaign.json"), read_json(root / "family.json")
-        settings, direction, target = meta["settings"], registry["direction"], registry["target"]
-        records = read_jsonl(root / "proposals.jsonl")
-        experiments = [r for r in records if r["status"] in ("ran", "failed", "pruned")]
-        hit = next(
-            (
-                (n, r["elapsed_s"])
-                for n, r in enumerate(experiments, 1)
-                if r["status"] == "ran"
-                and r["feasible"]
-                and (r["metric"] <= target if direction == "minimize" else r["metric"] >= target)
-            ),
-            None,
-        )
+        meta, run = read_json(root / "campaign.json"), read_repeat(root)
+        registry, settings, target = run.registry, meta["settings"], run.registry["target"]
+        direction = 1 if registry["direction"] == "maximize" else -1
+        best = best_so_far(run.metrics, run.feasible, direction, run.n)
+        (hit,) = experiments_to_target(best[None, :], target, direction)
         measured = (
-            f"target {target:g} after {hit[0]} of {len(experiments)} finished experiments, {hit[1]:.0f} s"
+            f"target {target:g} after {hit} of {run.n} finished experiments, {run.elapsed[hit - 1]:.0f} s"
             if hit
-            else f"target {target:g} not reached in {len(experiments)} experiments, {records[-1]['elapsed_s']:.0f} s"
+            else f"target {target:g} not reached in {run.n} experiments, {run.elapsed[-1]:.0f} s"
         )
         audit = read_json(root / "audit.json") if (root / "audit.json").is_file() else {}
         reseeded = [
