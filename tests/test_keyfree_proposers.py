@@ -185,9 +185,8 @@ def test_graded_constraints_are_the_trials_constraints_and_failures_take_the_wor
     met.tell(RunOutcome({"X": 0.95, "Y": 0.5}, 1.0, True, {"shortfall": -0.05}))
     met.tell(RunOutcome({"X": 0.5, "Y": 0.5}, None, False))
     assert met.trials[1].constraints == {"shortfall": 1.0}  # a failure is never feasible
-    tpe.tell(
-        RunOutcome({"X": 0.3, "Y": 0.1}, 2.0, False)
-    )  # a record without graded constraints: all 0/1 again
+    # A record without graded constraints: every trial is 0/1 again.
+    tpe.tell(RunOutcome({"X": 0.3, "Y": 0.1}, 2.0, False))
     assert [t.constraints for t in tpe.trials] == [{"feasible": v} for v in (1.0, 1.0, 0.0, 1.0)]
 
 

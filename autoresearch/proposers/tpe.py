@@ -11,6 +11,9 @@ ranks below every feasible trial (penalised, yet its location still informs the 
 failed or timed-out run is told as an infeasible trial at the worst metric seen so far (SMAC's
 "crash cost"), so TPE learns to avoid regions that diverge or overrun the per-run time limit;
 before any run has succeeded there is no worst metric and it is a FAIL trial, which TPE ignores.
+Without the crash cost, a search space with slow corners keeps TPE in its random start-up phase
+(FAIL trials do not count towards it) and spends the budget on timeouts. TPE searches the full
+declared bounds unless ``space="random-range"`` (autoresearch.space.SPACES).
 
 Constraints: when the family's runs report graded constraints (``constraints_field``, Optuna's
 convention: a value <= 0 is satisfied), those are the trial's constraints, so that before any
@@ -20,9 +23,6 @@ keeps the earliest runs as its "good" group and the GP's feasibility model is fl
 search blind until a draw happens to be feasible. A failed run takes the worst value seen of
 each constraint (1.0 each while every run has met them all); runs without graded constraints
 (older records) make every trial 0/1 again.
-Without the crash cost, a search space with slow corners keeps TPE in its random start-up phase
-(FAIL trials do not count towards it) and spends the budget on timeouts. TPE searches the full
-declared bounds unless ``space="random-range"`` (autoresearch.space.SPACES).
 """
 
 from __future__ import annotations
