@@ -166,6 +166,17 @@ def test_a_runs_log_line_is_adopted_only_with_the_intents_config_and_seed(tmp_pa
     assert third["status"] == "ran" and third["metric"] != 0.0
 
 
+def test_a_campaign_resumed_with_a_larger_cap_runs_up_to_it(tmp_path):
+    toy, campaign = copy_toy(tmp_path), tmp_path / "c"
+    run_loop(toy, ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}]), campaign, max_iters=3)
+    outcome, records = run_loop(toy, ScriptedProposer([{"EPOCHS": 13}, {"EPOCHS": 14}]), campaign, max_iters=5)
+    # the first session's stop record keeps its number but is not one of the five iterations
+    assert [r["status"] for r in records] == ["ran"] * 3 + ["stopped"] + ["ran"] * 2 + ["stopped"]
+    assert [r["iteration"] for r in records] == list(range(1, 8))
+    assert [r["config"]["EPOCHS"] for r in records if r["status"] == "ran"][1:] == [11, 12, 13, 14]
+    assert outcome.iterations == 5 and records[-1]["reason"] == "5 iterations reached the cap of 5"
+
+
 def crash_during(monkeypatch, run_id: str, when: str) -> None:
     """Make the loop die around the run ``run_id``: before it starts, or after it finished."""
     real = orchestrator.run_experiment

@@ -218,7 +218,7 @@ def run_random_arm(
     if not state.finished:
         reason = f"{len(configs)} experiments: the budget of {campaign.root.name}"
         stop = new_record(
-            iteration=state.iterations + 1,
+            iteration=state.next_iteration,
             time=now(),
             proposer=PROPOSER,
             status="stopped",

@@ -227,7 +227,9 @@ class CampaignState:
 
     @property
     def iterations(self) -> int:
-        return len(self.records)
+        """Iterations the loop has run: every record but the loop's own stop records, so that a
+        campaign resumed with a larger --max-iters runs up to that many."""
+        return sum(record["status"] != "stopped" for record in self.records)
 
     @property
     def next_iteration(self) -> int:

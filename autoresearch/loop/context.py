@@ -68,7 +68,7 @@ def build_context(
     family = state.family
     history = state.history_blind if blind else state.history_full
     return ProposerContext(
-        iteration=state.iterations + 1,
+        iteration=state.next_iteration,
         warnings=state.warnings() + extra_warnings,
         program=family.program_blind if blind else family.program,
         registry=shown_registry(registry, blind),
