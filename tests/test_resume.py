@@ -169,7 +169,9 @@ def test_a_runs_log_line_is_adopted_only_with_the_intents_config_and_seed(tmp_pa
 def test_a_campaign_resumed_with_a_larger_cap_runs_up_to_it(tmp_path):
     toy, campaign = copy_toy(tmp_path), tmp_path / "c"
     run_loop(toy, ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}]), campaign, max_iters=3)
-    outcome, records = run_loop(toy, ScriptedProposer([{"EPOCHS": 13}, {"EPOCHS": 14}]), campaign, max_iters=5)
+    outcome, records = run_loop(
+        toy, ScriptedProposer([{"EPOCHS": 13}, {"EPOCHS": 14}]), campaign, max_iters=5
+    )
     # the first session's stop record keeps its number but is not one of the five iterations
     assert [r["status"] for r in records] == ["ran"] * 3 + ["stopped"] + ["ran"] * 2 + ["stopped"]
     assert [r["iteration"] for r in records] == list(range(1, 8))
