@@ -80,9 +80,15 @@ def test_enqueued_configurations_run_first_then_tpe_takes_over(toy, tmp_path, ca
         {**baseline, "LEARNING_RATE": 0.05},
     ]
     hypotheses = [r["proposal"]["annotation"]["hypothesis"] for r in records[1:]]
-    assert ["enqueued" in h for h in hypotheses] == [True, True, False, False]  # the second after the resume
-    assert len(records) == 5 and all(h.startswith("TPE suggestion") for h in hypotheses[2:])
-    assert len({json.dumps(r["config"], sort_keys=True) for r in records}) == 5  # each ran once
+    assert ["enqueued" in h for h in hypotheses] == [
+        True,
+        True,
+        False,
+        False,
+        False,
+    ]  # the second after the resume
+    assert len(records) == 6 and all(h.startswith("TPE suggestion") for h in hypotheses[2:])
+    assert len({json.dumps(r["config"], sort_keys=True) for r in records}) == 6  # each ran once
 
     queue.write_text(json.dumps({"EPOCHS": 999}))
     assert loop("--family", toy, "--proposer", "tpe", "--enqueue", queue, "--campaign", tmp_path / "d") == 2
@@ -138,7 +144,7 @@ def test_prepare_failure_stops_then_resume_continues(toy, tmp_path, capsys):
     (toy / "prepare.py").write_text(good)
     assert loop("--resume", "--campaign", campaign) == 0
     records = read_jsonl(campaign / "proposals.jsonl")
-    assert [r["status"] for r in records] == ["stopped", "ran", "ran", "stopped"]
+    assert [r["status"] for r in records] == ["stopped", "ran", "ran", "ran", "stopped"]  # three, as asked
     assert records[1]["proposer"] == "baseline" and records[-1]["trigger"] == "max_iters"
 
 
@@ -151,7 +157,7 @@ def test_resume_of_a_finished_campaign(toy, tmp_path, capsys):
     )
     assert loop("--resume", "--campaign", campaign, "--max-iters", 5) == 0  # a raised cap continues it
     records = read_jsonl(campaign / "proposals.jsonl")
-    assert [r["status"] for r in records] == ["ran", "ran", "stopped", "ran", "ran", "stopped"]
+    assert [r["status"] for r in records] == ["ran", "ran", "stopped", "ran", "ran", "ran", "stopped"]
     assert read_json(campaign / "campaign.json")["settings"]["max_iters"] == 5
 
 

@@ -190,7 +190,7 @@ def _outcome(task: RepeatTask, returncode: int, before: int, last_line: str) -> 
         "status": status,
         "trigger": last.get("trigger"),
         "reason": last_line if status == "error" else last.get("reason"),
-        "iterations": len(records),
+        "iterations": sum(r.get("status") != "stopped" for r in records),  # as CampaignState.iterations
         "best": best and {"metric": best["metric"], "run_id": best["run_id"]},
     }
 
