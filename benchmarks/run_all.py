@@ -367,9 +367,13 @@ def compare_rows() -> list[Row]:
                 )
                 hits = experiments_to_target(matrix, target, direction)
                 median_hit = median_experiments_to_target(hits)
-                reached_by = sum(h is not None for h in hits)
-                text = "never" if math.isinf(median_hit) else f"{median_hit:g}"
-                cells.append(f"{arm.name} {text} ({reached_by}/{len(hits)})")
+                reached = sorted(h for h in hits if h is not None)
+                count = f"{len(reached)}/{len(hits)}"
+                if math.isinf(median_hit):  # censored at the budget, as compare prints it
+                    at = f", at {', '.join(map(str, reached))}" if reached else ""
+                    cells.append(f"{arm.name} >{budget} ({count}{at})")
+                else:
+                    cells.append(f"{arm.name} {median_hit:g} ({count})")
             same = len(set(spaces.values())) == 1
             space_note = (
                 f"all over {next(iter(spaces.values()))}"
@@ -381,7 +385,7 @@ def compare_rows() -> list[Row]:
                     f"{what}, {label} {target:.4g}",
                     "; ".join(cells),
                     f"budget {budget}, {min(len(a.repeats) for a in arms)}+ repeats per arm",
-                    f"{space_note}; (k/n): repeats that reached it; {where}",
+                    f"{space_note}; (k/n): repeats that reached it (at: their experiment counts); {where}",
                 )
             )
     return rows
