@@ -44,10 +44,12 @@ def test_experiments_to_target_per_arm_with_the_space_each_searched(tmp_path, mo
     )
     rows = run_all.compare_rows()
     target, gate, missing = rows
-    # Target 0.5: gp's repeats reach it at experiments 3 and 2 and never: median 3; random never.
-    assert target[0].endswith("target 0.5") and target[1] == "gp 3 (2/3); random never (0/3)"
-    # The gate (1.0 - 2 x 0.1 = 0.8): gp at 2, 3, 2; random at never, 2, never.
-    assert gate[1] == "gp 2 (3/3); random never (1/3)"
+    # Target 0.5: gp's repeats reach it at experiments 3 and 2 and never: median 3; random never
+    # within the budget of 3 experiments.
+    assert target[0].endswith("target 0.5") and target[1] == "gp 3 (2/3); random >3 (0/3)"
+    # The gate (1.0 - 2 x 0.1 = 0.8): gp at 2, 3, 2; random at never, 2, never: the median is censored,
+    # and the one repeat that got there did at its 2nd experiment.
+    assert gate[1] == "gp 2 (3/3); random >3 (1/3, at 2)"
     assert "all over random-range" in target[3]  # random's default space is random-range
     assert missing[1] == "not run"
 
