@@ -82,7 +82,8 @@ def test_two_concurrent_resumes_the_second_is_refused(campaign, tmp_path):
     finally:
         first.kill()
     records = read_jsonl(campaign / "proposals.jsonl")
-    assert [r["iteration"] for r in records] == list(range(1, 10))  # 8 and the stop record
+    # 3 iterations and their stop record, then 5 more (8 in all) and the final stop record
+    assert [r["iteration"] for r in records] == list(range(1, 11))
     assert main(["check", "--campaign", str(campaign)]) == 0
 
 

@@ -30,7 +30,7 @@ def test_loop_keeps_the_space_and_resume_honours_it(tmp_path, capsys):
     assert read_json(campaign / "campaign.json")["settings"]["space"] == "random-range"
     assert main(["loop", "--resume", "--campaign", str(campaign), "--max-iters", "7"]) == 0
     drawn = epochs_drawn(campaign)
-    assert len(drawn) == 5 and all(5 <= e <= 50 for e in drawn)
+    assert len(drawn) == 6 and all(5 <= e <= 50 for e in drawn)  # 3 + 3 GP draws: 7 iterations in all
     assert read_json(campaign / "campaign.json")["settings"]["space"] == "random-range"
     with pytest.raises(SystemExit):
         main(["loop", "--family", str(toy), "--proposer", "random", "--space", "all"])
