@@ -65,6 +65,12 @@ def now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
+def count_iterations(records: list[dict[str, Any]]) -> int:
+    """Iterations the loop has run: every record but the loop's own stop records, so that a campaign
+    resumed with a larger --max-iters runs up to that many."""
+    return sum(record.get("status") != "stopped" for record in records)
+
+
 def new_record(**fields: Any) -> dict[str, Any]:
     """One proposals.jsonl record: every key of RECORD_KEYS, in order, unset ones None. The only
     way records are made (the loop, the audit's random arm, tests), so every writer agrees."""
@@ -227,9 +233,7 @@ class CampaignState:
 
     @property
     def iterations(self) -> int:
-        """Iterations the loop has run: every record but the loop's own stop records, so that a
-        campaign resumed with a larger --max-iters runs up to that many."""
-        return sum(record["status"] != "stopped" for record in self.records)
+        return count_iterations(self.records)
 
     @property
     def next_iteration(self) -> int:

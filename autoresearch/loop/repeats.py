@@ -29,7 +29,7 @@ from typing import Any
 from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import JournalError, read_json, read_jsonl, write_json_atomic
-from autoresearch.loop.campaign import CampaignMeta, CampaignPaths, portable_path
+from autoresearch.loop.campaign import CampaignMeta, CampaignPaths, count_iterations, portable_path
 
 GROUP_FILE = "repeats.json"
 REPEAT_PREFIX = "repeat-"
@@ -190,7 +190,7 @@ def _outcome(task: RepeatTask, returncode: int, before: int, last_line: str) -> 
         "status": status,
         "trigger": last.get("trigger"),
         "reason": last_line if status == "error" else last.get("reason"),
-        "iterations": sum(r.get("status") != "stopped" for r in records),  # as CampaignState.iterations
+        "iterations": count_iterations(records),
         "best": best and {"metric": best["metric"], "run_id": best["run_id"]},
     }
 
