@@ -6,8 +6,9 @@ Reuses the measurements of bench_envs.py, bench_experts_cbf.py and bench_audit.p
 family's train.py through autoresearch.runner, the loop's own path (a patched copy in a
 temporary run directory, run as a subprocess); measures the loop's overhead per iteration on a
 temporary copy of the toy family; and reads the key-free arms' experiments to target from the
-committed groups of repeats in results/ and the compute early stopping saved from committed campaigns
-(nothing is run for those rows); ``--parallel`` also times a docking campaign at --workers 1 and 2. A few minutes; ``--quick`` shortens every measurement
+committed groups of repeats in results/, the compute early stopping saved from committed campaigns
+and the main job's wall time on a fresh clone from the log benchmarks/main_job_fresh_clone.sh
+writes (nothing is run for those rows); ``--parallel`` also times a docking campaign at --workers 1 and 2. A few minutes; ``--quick`` shortens every measurement
 (a smoke test, not numbers to quote). 'Tuned' is the audited best in each family.json: its wall
 time is read from the committed reseeded runs, or with ``--tuned`` timed now (docking's takes
 minutes on a CPU). Progress goes to stderr, the table to stdout.
@@ -19,6 +20,7 @@ import argparse
 import math
 import os
 import platform
+import re
 import sys
 import tempfile
 import time
@@ -48,6 +50,7 @@ ENV_IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v0")
 NATIVE = NATIVE_ENVS[0]
 BASELINE_TIMEOUT_S, TUNED_TIMEOUT_S = 300.0, 1800.0
 # Committed groups of repeats (loop --repeats) per family: (directory, prefix of the arm groups).
+MAIN_JOB_LOG = "results/logs/main_job_fresh_clone.txt"
 COMPARE_GROUPS = {
     "rendezvous": ("results/compare-rendezvous", "rdv"),
     "docking": ("results/compare", "dock"),
@@ -292,6 +295,24 @@ def early_stop_rows() -> list[Row]:
     return rows
 
 
+def main_job_row() -> Row:
+    """The main job's wall time on a fresh clone once installed, read from the log that
+    benchmarks/main_job_fresh_clone.sh writes (scripts/main.sh's own '[main] wall time' line)."""
+    what = "main job (`bash scripts/main.sh`) on a fresh clone, once installed: wall time"
+    how = "bash benchmarks/main_job_fresh_clone.sh"
+    log = ROOT / MAIN_JOB_LOG
+    text = log.read_text(encoding="utf-8") if log.is_file() else ""
+    wall = re.search(r"^\[main\] wall time: (\d+) s$", text, re.MULTILINE)
+    if not wall:
+        return (what, "not run", "", f"{how} writes {MAIN_JOB_LOG}")
+    install = re.search(r"install: (\d+) s", text)
+    headline = re.search(r"^\[main\] headline: (.*)$", text, re.MULTILINE)
+    notes = [headline.group(1) if headline else "no headline", MAIN_JOB_LOG, how]
+    if install:
+        notes.insert(1, f"install {install.group(1)} s before it")
+    return (what, f"{wall.group(1)} s", "target <= 600 s", "; ".join(notes))
+
+
 def evidence_rows() -> list[Row]:
     """Experiments and wall-clock to the family's target (single seed, feasible runs) in each
     committed evidence campaign, and its best candidate's reseeded verification (nothing is run)."""
@@ -437,6 +458,7 @@ def main() -> int:
         rows += compare_rows()
         rows += early_stop_rows()
         rows += evidence_rows()
+        rows.append(main_job_row())
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"
     print(text, end="")

@@ -105,3 +105,19 @@ def test_parallel_row_reads_the_committed_measurement(tmp_path, monkeypatch):
     assert row[1:3] == ("90.0 s vs 150.0 s", "0.60x (target <= 0.6x)") and "results/logs" in row[3]
     log.unlink()
     assert run_all.parallel_row(False, tmp_path)[1] == "not run"
+
+
+def test_main_job_row_reads_the_fresh_clone_log(tmp_path, monkeypatch):
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    assert run_all.main_job_row()[1] == "not run"
+    log = tmp_path / run_all.MAIN_JOB_LOG
+    log.parent.mkdir(parents=True)
+    log.write_text(
+        "[fresh clone] commit abc1234, 2 CPUs, 2026-11-25 00:40 UTC, install: 61 s\n"
+        "[main] headline: candidate 2b93d51f reseeded 1.734 +- 0.036 (n=3), m = 6.18 sigma: PASS\n"
+        "[main] wall time: 246 s\n"
+    )
+    what, measured, target, note = run_all.main_job_row()
+    assert what.startswith("main job")
+    assert (measured, target) == ("246 s", "target <= 600 s")
+    assert note.startswith("candidate 2b93d51f reseeded 1.734") and "install 61 s before it" in note
