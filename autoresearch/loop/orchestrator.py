@@ -134,8 +134,7 @@ class Orchestrator:
         self.state = CampaignState.from_records(self.family, self.journal.read())
         for record in self.state.records:
             if record["status"] in RUN_STATUSES:
-                ok = record["status"] == "ran"
-                self.proposer.tell(self._run_outcome(record, ok))
+                self.proposer.tell(self._run_outcome(record))
         self._sync_best()
         self._in_flight: dict[str, dict[str, Any]] = {}  # run_id -> intent, in launch order
         self._done: queue.Queue[tuple[dict[str, Any], RunResult | BaseException]] = queue.Queue()
@@ -556,12 +555,12 @@ class Orchestrator:
         self._commit(record)
         if self.stopper is not None:
             self.stopper.finish(record)
-        self.proposer.tell(self._run_outcome(record, result.ok))
+        self.proposer.tell(self._run_outcome(record))
         self._sync_best()
 
-    def _run_outcome(self, record: dict[str, Any], ok: bool) -> RunOutcome:
+    def _run_outcome(self, record: dict[str, Any]) -> RunOutcome:
         """What the proposer is told of a run record (a failed or stopped run has no metric)."""
-        if not ok:
+        if record["status"] != "ran":
             return RunOutcome(record["config"], None, False)
         constraints = self.family.constraints(record["record"])
         return RunOutcome(record["config"], record["metric"], bool(record["feasible"]), constraints)
