@@ -27,6 +27,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from cwh_envs.dynamics import apply
+
 FALLBACK_DIRECTION = np.array([1.0, 0.0, 0.0])  # +x radial, used when r_{t+1} = 0
 
 
@@ -72,13 +74,14 @@ def _number(value) -> bool:
 
 def barrier_terms(states: np.ndarray, a: np.ndarray, b: np.ndarray, radius: float):
     """beta (N, 3) [m/N] and rho (N,) [m] of the constraint ``beta^T u >= rho``; radius = R + delta."""
-    coast = states @ a.T  # [A x_t]: r_{t+1} without the (Euler: zero) effect of u_t
-    two_step = coast @ a.T  # A^2 x_t
+    # dynamics.apply, not @: a state is filtered to the same bits alone or in any batch.
+    coast = apply(a, states)  # [A x_t]: r_{t+1} without the (Euler: zero) effect of u_t
+    two_step = apply(a, coast)  # A^2 x_t
     r_next = coast[:, :3]
     norm = np.linalg.norm(r_next, axis=1, keepdims=True)
     normal = np.where(norm > 0.0, r_next / np.where(norm > 0.0, norm, 1.0), FALLBACK_DIRECTION)
     lever = (a @ b + b)[:3]  # (3, 3): position rows of A B + B
-    beta = normal @ lever
+    beta = apply(lever.T, normal)
     rho = radius - np.einsum("ni,ni->n", normal, two_step[:, :3])
     return beta, rho
 

@@ -8,9 +8,15 @@ worst build the same file twice. Cache directory: the ``cache_dir`` argument, el
 ``$CWH_ENVS_CACHE``, else ``~/.cache/cwh_envs``.
 
 Random streams (``np.random.SeedSequence(seed, spawn_key=(stream, task))``) are disjoint by
-construction: training seeds use stream 0, recovery stream 1, and the evaluation set stream 2
-(with entropy fixed at 0), so no training seed can reproduce the held-out set. The evaluation
-builder also checks it against the candidate streams of training seeds 0..EVAL_CHECK_SEEDS-1.
+construction: training seeds use stream 0, recovery stream 1, the search split of the evaluation
+starts stream 2 and the sealed test split stream 3 (both with entropy fixed at 0), so no training
+seed can reproduce a held-out set. Both splits are screened by the same builder. When built, a
+split is checked against the candidate streams of training seeds 0..EVAL_CHECK_SEEDS-1 (a superset
+of every demonstration set of those seeds), and the test split also against the search split's
+candidate stream; ``cwh_envs.prepare`` checks it against the recovery pool a family trains on.
+
+The search split (128 starts by default) is what a research loop selects on; the test split (1024
+by default) is for certifying what it selected, never for choosing (docs/audit.md).
 """
 
 from __future__ import annotations
@@ -43,7 +49,10 @@ TASKS = ("rendezvous", "docking")
 EVAL_CHECK_SEEDS = 32  # training seeds whose candidate streams the evaluation set is checked against
 EVAL_CHECK_CANDIDATES = 16384  # candidates per seed checked: ~4x what 256 docking demos consume
 DEFAULT_RECOVERY_NOISE = (1.0, 0.005)  # (m, m/s) std of the perturbation added to an expert state
-_TRAIN_STREAM, _RECOVERY_STREAM, _EVAL_STREAM = 0, 1, 2
+_TRAIN_STREAM, _RECOVERY_STREAM = 0, 1
+SPLITS = ("search", "test")  # the evaluation splits: selected on, and sealed for certification
+_SPLIT_STREAM = {"search": 2, "test": 3}
+DEFAULT_EVAL_SIZE = {"search": 128, "test": 1024}
 _MAX_RECOVERY_TRIES = 8  # perturbations tried per source trajectory before moving on
 
 
@@ -65,6 +74,23 @@ class Demonstrations:
     @property
     def n_episodes(self) -> int:
         return len(self.starts)
+
+    @property
+    def content_key(self) -> str:
+        """sha256 (16 hex digits) of every array: names the data a run trained or was scored on."""
+        digest = hashlib.sha256()
+        for name in _FIELDS:
+            array = np.ascontiguousarray(getattr(self, name))
+            digest.update(f"{name}:{array.dtype.str}:{array.shape}".encode())
+            digest.update(array.tobytes())
+        return digest.hexdigest()[:16]
+
+    def trajectory_thrust(self) -> np.ndarray:
+        """Thrust (E, H, 3) [N] of sets whose trajectories all cover the whole horizon (the evaluation splits)."""
+        steps, rest = divmod(len(self.actions), self.n_episodes)
+        if rest or not np.array_equal(self.episode, np.repeat(np.arange(self.n_episodes), steps)):
+            raise ValueError("trajectory_thrust: the trajectories of this set differ in length")
+        return self.actions.reshape(self.n_episodes, steps, 3)
 
     def take(self, n_episodes: int) -> Demonstrations:
         """The first ``n_episodes`` trajectories (all of them if fewer)."""
@@ -106,20 +132,51 @@ def demonstrations(
 
 
 def evaluation_starts(
-    task: str, n: int = 128, problem=None, cache_dir=None, *, build: bool = True
+    task: str,
+    n: int | None = None,
+    problem=None,
+    cache_dir=None,
+    *,
+    split: str = "search",
+    build: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The held-out evaluation set: starts (n, 6) and goals (n, 3) (zeros for rendezvous), all expert-solvable."""
+    """Held-out evaluation starts (n, 6) and goals (n, 3) (zeros for rendezvous), all expert-solvable.
+
+    ``split="search"`` (n defaults to 128) is the set a search selects on; ``split="test"`` (n
+    defaults to 1024) is the sealed set its winners are certified on. Splits are nested in n.
+    """
+    held_out = evaluation_set(task, n, problem, cache_dir, split=split, build=build)
+    return held_out.starts, held_out.goals
+
+
+def evaluation_set(
+    task: str,
+    n: int | None = None,
+    problem=None,
+    cache_dir=None,
+    *,
+    split: str = "search",
+    build: bool = True,
+) -> Demonstrations:
+    """The evaluation starts of :func:`evaluation_starts` with the expert's trajectories from them
+    (e.g. the expert's control effort, the reference a policy's fuel use is measured against)."""
     problem = _problem(task, problem)
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    n = DEFAULT_EVAL_SIZE[split] if n is None else n
     _check_count("n", n)
-    key = _cache_key("evaluation", task, problem, n=n)
+    key = _cache_key("evaluation", task, problem, n=n, split=split)
 
     def build_held_out() -> Demonstrations:
-        held_out = _build_demonstrations(task, n, _rng(_EVAL_STREAM, task, 0), problem)
-        _check_disjoint_from_training(task, held_out.starts, problem)
+        rng = _rng(_SPLIT_STREAM[split], task, 0)
+        held_out = _build_demonstrations(task, n, rng, problem, f"{task} {split} split")
+        streams = {f"training seed {seed}": (_TRAIN_STREAM, seed) for seed in range(EVAL_CHECK_SEEDS)}
+        if split == "test":
+            streams["the search split"] = (_SPLIT_STREAM["search"], 0)
+        _check_disjoint(task, held_out.starts, problem, streams)
         return held_out
 
-    held_out = _cached(cache_dir, key, build_held_out, build)
-    return held_out.starts, held_out.goals
+    return _cached(cache_dir, key, build_held_out, build)
 
 
 def recovery_demonstrations(
@@ -166,8 +223,10 @@ def cache_directory(cache_dir=None) -> Path:
 # ------------------------------------------------------------------------------------- builders
 
 
-def _build_demonstrations(task: str, n: int, rng: np.random.Generator, problem) -> Demonstrations:
-    progress = _Progress(f"{task} demonstrations", n)
+def _build_demonstrations(
+    task: str, n: int, rng: np.random.Generator, problem, label: str | None = None
+) -> Demonstrations:
+    progress = _Progress(label or f"{task} demonstrations", n)
     if task == "rendezvous":
         starts, states, controls = screened_rendezvous(rng, n, problem)
         goals = np.zeros((n, 3))
@@ -247,11 +306,12 @@ def _pack(task, problem, starts, goals, states, controls, first_steps) -> Demons
     )
 
 
-def _check_disjoint_from_training(task: str, held_out: np.ndarray, problem) -> None:
-    """Assert no held-out start equals a candidate of the training streams (a superset of their starts)."""
+def _check_disjoint(task: str, held_out: np.ndarray, problem, streams: dict[str, tuple[int, int]]) -> None:
+    """Assert no held-out start is a candidate of the given (stream, seed) draws (each a superset of
+    the starts that stream's sets keep), over the first EVAL_CHECK_CANDIDATES candidates of each."""
     held = {row.tobytes() for row in held_out}
-    for seed in range(EVAL_CHECK_SEEDS):
-        rng = _rng(_TRAIN_STREAM, task, seed)
+    for name, (stream, seed) in streams.items():
+        rng = _rng(stream, task, seed)
         drawn = 0
         while drawn < EVAL_CHECK_CANDIDATES:
             if task == "rendezvous":
@@ -259,7 +319,7 @@ def _check_disjoint_from_training(task: str, held_out: np.ndarray, problem) -> N
             else:
                 candidates = docking_candidates(rng, problem)[0]
             if any(row.tobytes() in held for row in candidates):
-                raise AssertionError(f"evaluation start found in the training stream of seed {seed}")
+                raise AssertionError(f"evaluation start found among the candidates of {name}")
             drawn += len(candidates)
 
 

@@ -38,16 +38,17 @@ class DataNeeds:
     problem: object  # the family's RendezvousProblem / DockingProblem
     pool_demos: int  # the training pool: the N_DEMOS upper bound
     data_seed: int
-    n_eval: int  # held-out evaluation starts
+    n_eval: int  # held-out evaluation starts: the search split
     obs_dim: int  # the observation width the demonstrations must have
     pool_recovery: int | None = None  # the recovery pool (docking's augmentation knob), if any
+    n_test: int | None = None  # the sealed test split (train.py --eval-split test), if any
 
 
 def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
     """(description, trajectories, loader) per set.
 
     A loader takes ``build`` (False: raise datasets.CacheMiss rather than build) and returns
-    (starts, goals, demos or None).
+    (starts, goals, demos).
     """
     task, problem, seed = needs.task, needs.problem, needs.data_seed
 
@@ -55,14 +56,17 @@ def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
         demos = datasets.demonstrations(task, needs.pool_demos, seed=seed, problem=problem, build=build)
         return demos.starts, demos.goals, demos
 
-    def held_out(build):
-        return (*datasets.evaluation_starts(task, needs.n_eval, problem=problem, build=build), None)
+    def split(name, n):
+        def held_out(build):
+            demos = datasets.evaluation_set(task, n, problem=problem, split=name, build=build)
+            return demos.starts, demos.goals, demos
+
+        return (f"{task} {name} split: evaluation_set(n={n}, split={name!r})", n, held_out)
 
     call = f"demonstrations(n={needs.pool_demos}, seed={seed})"
-    sets = [
-        (f"{task} training pool: {call}", needs.pool_demos, pool),
-        (f"{task} evaluation starts: evaluation_starts(n={needs.n_eval})", needs.n_eval, held_out),
-    ]
+    sets = [(f"{task} training pool: {call}", needs.pool_demos, pool), split("search", needs.n_eval)]
+    if needs.n_test is not None:
+        sets.append(split("test", needs.n_test))
     if needs.pool_recovery is not None:
 
         def recovery(build):
@@ -82,8 +86,6 @@ def inconsistency(needs: DataNeeds, expected: int, starts, goals, demos) -> str 
         return f"holds {len(starts)} starts, expected {expected}"
     if not (np.all(np.isfinite(starts)) and np.all(np.isfinite(goals))):
         return "non-finite starts or goals"
-    if demos is None:
-        return None
     if demos.observations.shape[1] != needs.obs_dim or len(demos.actions) != len(demos.observations):
         return f"observations have shape {demos.observations.shape}, expected (M, {needs.obs_dim})"
     finite = np.all(np.isfinite(demos.observations)) and np.all(np.isfinite(demos.actions))
@@ -94,16 +96,31 @@ def inconsistency(needs: DataNeeds, expected: int, starts, goals, demos) -> str 
     return None
 
 
+def shared_starts(sealed: np.ndarray, other: np.ndarray) -> int:
+    """How many starts (rows of (N, 6)) of ``sealed`` also occur, bit for bit, in ``other``."""
+    seen = {row.tobytes() for row in np.ascontiguousarray(other, dtype=np.float64)}
+    return sum(row.tobytes() in seen for row in np.ascontiguousarray(sealed, dtype=np.float64))
+
+
 def check(needs: DataNeeds) -> int:
-    failures, sets = [], required_sets(needs)
+    failures, sets, loaded = [], required_sets(needs), {}
     started = time.perf_counter()
     for description, expected, load in sets:
         try:
-            reason = inconsistency(needs, expected, *load(build=False))
+            starts, goals, demos = load(build=False)
+            reason = inconsistency(needs, expected, starts, goals, demos)
+            loaded[description] = starts
         except datasets.CacheMiss:
             reason = "missing"
         if reason:
             failures.append(f"{description}: {reason}")
+    # The sealed split must share no start with anything a run trains or selects on.
+    sealed = [d for d in loaded if " test split" in d]
+    for description in sealed:
+        for other, starts in loaded.items():
+            shared = other != description and shared_starts(loaded[description], starts)
+            if shared:
+                failures.append(f"{description}: shares {shared} start(s) with the {other}")
     where = datasets.cache_directory()
     if failures:
         print(f"prepare.py --check: the cache in {where} is incomplete:", file=sys.stderr)

@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 from matplotlib.figure import Figure
 
-from cwh_envs.datasets import evaluation_starts
+from cwh_envs.datasets import evaluation_set
 from cwh_envs.experts import solve_docking, solve_rendezvous
 from cwh_envs.render import plot_trajectories
 
@@ -49,17 +49,17 @@ def main() -> None:
     policy, saved = family.load_policy(args.policy)
     if saved["task"] != family.TASK:
         raise SystemExit(f"{args.policy} holds a {saved['task']} policy, not {args.family}")
-    starts, goals = evaluation_starts(family.TASK, family.N_EVAL, problem=family.PROBLEM)
+    held_out = evaluation_set(family.TASK, family.N_EVAL, problem=family.PROBLEM)
+    starts, goals = held_out.starts, held_out.goals
 
     # Each variant: closed-loop states of all starts (N, H+1, 6) and the family's metrics.
     flown = {}
     if family.TASK == "rendezvous":
-        states = family.fly(policy, starts)
-        flown["policy"] = (states, family.rendezvous_metrics(states))
+        flown["policy"] = (family.fly(policy, starts).states, family.evaluate(policy, held_out))
     else:
         for label, cbf in (("policy", False), ("policy + CBF", True)):
-            states, _, _ = family.fly(policy, starts, goals, cbf)
-            flown[label] = (states, family.evaluate(policy, starts, goals, cbf))
+            states = family.fly(policy, starts, goals, cbf).states
+            flown[label] = (states, family.evaluate(policy, held_out, cbf))
 
     metric = family.METRIC
     print(f"{args.family} policy {args.policy} on {len(starts)} held-out starts:")

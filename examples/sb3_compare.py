@@ -3,9 +3,10 @@
 What would a reader try instead of cloning the expert? Reinforcement learning on the env's dense
 reward, or a classical feedback law. This script trains Stable-Baselines3's PPO and SAC on
 CWHRendezvous-v0 and CWHDockKOZ-v0 (docking without and with the CBFSafetyFilter in the loop) and
-scores every policy with the families' own code: the 128 held-out starts, flown in closed loop as
-one batch by the family train.py's ``fly``/``evaluate`` on the shared (A, B) (and CBF), then the
-family metric. Beside them: the expert (solve_* from each start, flown open-loop through the same
+scores every policy with the families' own code: the 128 held-out starts of the search split,
+flown in closed loop as one batch by the family train.py's ``evaluate`` (the env's own batched core
+and CBF, cwh_envs.rollout), then the family metric and the fuel used against the expert's from the
+same starts (sum of |u|^2 dt, which the expert minimises, and delta-v). Beside them: the expert (solve_* from each start, flown open-loop through the same
 code), a behaviour-cloned policy from a family run, and a hand-written PD law (nothing learned).
 
     .venv/bin/python examples/sb3_compare.py --smoke     # under a minute: plumbing only, not a result
@@ -37,7 +38,7 @@ from torch import nn
 
 from cwh_envs import CBFSafetyFilter
 from cwh_envs.controllers import pd_action
-from cwh_envs.datasets import evaluation_starts
+from cwh_envs.datasets import evaluation_set
 from cwh_envs.experts import solve_docking, solve_rendezvous
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -187,58 +188,60 @@ class EvalSet:
 
     def __init__(self, family, cbf: bool):
         self.family, self.cbf = family, cbf
-        self.starts, self.goals = evaluation_starts(family.TASK, family.N_EVAL, problem=family.PROBLEM)
+        self.held_out = evaluation_set(family.TASK, family.N_EVAL, problem=family.PROBLEM)
+        self.starts, self.goals = self.held_out.starts, self.held_out.goals
 
     def __call__(self, policy) -> dict:
         if self.family.TASK == "rendezvous":
-            return self.family.rendezvous_metrics(self.family.fly(policy, self.starts))
-        return self.family.evaluate(policy, self.starts, self.goals, self.cbf)
+            return self.family.evaluate(policy, self.held_out)
+        return self.family.evaluate(policy, self.held_out, self.cbf)
 
 
 class SB3Policy:
-    """An SB3 model behind the families' ``act`` interface: observations (N, d) -> thrust (N, 3) [N]."""
+    """An SB3 model behind the families' ``act`` interface: observations (N, d) -> env actions (N, 3)."""
 
-    def __init__(self, model, u_max: float):
-        self.model, self.u_max = model, u_max
+    def __init__(self, model):
+        self.model = model
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         normalizer = self.model.get_vec_normalize_env()
         if normalizer is not None:  # the statistics the policy was trained on, frozen
             obs = normalizer.normalize_obs(obs)
         action, _ = self.model.predict(obs, deterministic=True)
-        return np.clip(action.astype(np.float64), -1.0, 1.0) * self.u_max  # what the env does to an action
+        return np.clip(action.astype(np.float64), -1.0, 1.0)  # what the env does to an action
 
 
 class OpenLoopExpert:
-    """Replays the expert's thrust (N, H, 3); the step is read back from the observed time-to-go."""
+    """Replays the expert's thrust (N, H, 3) [N] as env actions; the step is read back from the observed
+    time-to-go."""
 
-    def __init__(self, controls: np.ndarray):
-        self.controls = controls
+    def __init__(self, controls: np.ndarray, u_max: float):
+        self.actions = controls / u_max
         self.horizon = controls.shape[1]
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         step = np.rint((1.0 - obs[:, -1].astype(np.float64)) * self.horizon).astype(int)
-        return self.controls[np.arange(len(obs)), step]
+        return self.actions[np.arange(len(obs)), step]
 
 
 class PDController:
-    """Nothing learned: cwh_envs.controllers.pd_action (vector_rollout.py's law) in newtons, a
-    saturated, critically damped PD law toward the target. It flies straight at the docking point;
-    the keep-out is left to the CBF."""
+    """Nothing learned: cwh_envs.controllers.pd_action (vector_rollout.py's law), a saturated,
+    critically damped PD law toward the target. It flies straight at the docking point; the
+    keep-out is left to the CBF."""
 
     def __init__(self, problem, omega: float = 0.01):
         self.problem, self.omega = problem, omega
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        return self.problem.u_max * pd_action(obs, self.problem, self.omega)
+        return pd_action(obs, self.problem, self.omega)
 
 
 class MetricCurve(BaseCallback):
     """Scores the policy every ``every`` env steps before ``stop``; the clock excludes the scoring."""
 
-    def __init__(self, evaluate: EvalSet, u_max: float, every: int, stop: int, metric: str):
+    def __init__(self, evaluate: EvalSet, every: int, stop: int, metric: str):
         super().__init__()
-        self.evaluate, self.u_max, self.every, self.stop, self.metric = evaluate, u_max, every, stop, metric
+        self.evaluate, self.every, self.stop, self.metric = evaluate, every, stop, metric
         self.points: list[dict] = []
 
     def _on_training_start(self) -> None:
@@ -247,7 +250,7 @@ class MetricCurve(BaseCallback):
     def score(self) -> dict:
         seconds = time.perf_counter() - self.started - self.scoring
         began = time.perf_counter()
-        metrics = self.evaluate(SB3Policy(self.model, self.u_max))
+        metrics = self.evaluate(SB3Policy(self.model))
         self.scoring += time.perf_counter() - began
         self.points.append({"timesteps": self.num_timesteps, "train_seconds": seconds, **metrics})
         self.logger.record(f"family/{self.metric}", metrics[self.metric])
@@ -274,7 +277,7 @@ def train_sb3(algo: str, problem: dict, family, evaluate: EvalSet, args) -> dict
     model = ALGOS[algo]("MlpPolicy", envs, seed=args.seed, tensorboard_log=args.tensorboard, **params)
     timesteps = args.sac_timesteps if algo == "sac" else args.timesteps
     every = max(1, timesteps // args.eval_points)
-    curve = MetricCurve(evaluate, family.PROBLEM.u_max, every, timesteps, family.METRIC)
+    curve = MetricCurve(evaluate, every, timesteps, family.METRIC)
     model.learn(timesteps, callback=curve, tb_log_name=f"{algo}_{problem['name']}")
     metrics = curve.score()
     model.save(args.out / "models" / f"{algo}_{problem['name']}.zip")
@@ -302,7 +305,7 @@ def expert(family, evaluate: EvalSet) -> dict:
     return {
         "data": "the model",
         "train_seconds": seconds,
-        "metrics": evaluate(OpenLoopExpert(np.array(controls))),
+        "metrics": evaluate(OpenLoopExpert(np.array(controls), family.PROBLEM.u_max)),
     }
 
 
@@ -338,8 +341,8 @@ def fmt(value) -> str:
 def markdown(rows: list[dict], notes: list[str]) -> str:
     lines = [
         "| problem | method | trained on | train wall-clock [s] | metric | value | success rate "
-        "| violation rate | min clearance [m] | strict feasible | CBF edits |",
-        "|---|---|---|---:|---|---:|---:|---:|---:|---|---:|",
+        "| violation rate | min clearance [m] | strict feasible | CBF edits | energy / expert | Δv / expert |",
+        "|---|---|---|---:|---|---:|---:|---:|---:|---|---:|---:|---:|",
     ]
     for row in rows:
         m = row["metrics"]
@@ -355,6 +358,8 @@ def markdown(rows: list[dict], notes: list[str]) -> str:
             fmt(m.get("min_clearance")),
             fmt(m.get("strict_feasible")),
             f"{m['cbf_active_rate']:.1%}" if PROBLEMS[row["problem"]]["cbf"] else "-",
+            f"{m['effort_ratio']:.3g}",
+            f"{m['delta_v_ratio']:.3g}",
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n\n" + "\n".join(f"- {note}" for note in notes) + "\n"
@@ -432,6 +437,9 @@ def main() -> None:
         "starts; docking+cbf flies through cwh_envs.cbf.safe_actions (SB3 also trains through "
         "CBFSafetyFilter there) and CBF edits is the share of steps the filter changed; docking flies "
         "unfiltered.",
+        "energy / expert and Δv / expert: the sums over the 128 starts of Σ|u|²dt (what the minimum-energy "
+        "expert minimises) and of Σ|u|dt/m, over the expert's own from the same starts (its open-loop row "
+        "is 1 up to rounding); logged, never optimised by any method here.",
     ]
     table = markdown(rows, notes)
     (args.out / "results.md").write_text(table)

@@ -6,13 +6,16 @@ import numpy as np
 import pytest
 
 from cwh_envs.datasets import (
+    DEFAULT_EVAL_SIZE,
     CacheMiss,
     Demonstrations,
     cache_directory,
     demonstrations,
+    evaluation_set,
     evaluation_starts,
     recovery_demonstrations,
 )
+from cwh_envs.prepare import shared_starts
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
 FIELDS = ("observations", "actions", "episode", "starts", "goals")
@@ -114,6 +117,42 @@ def test_evaluation_set_is_disjoint_from_the_training_pool(task, tmp_path):
     for seed in range(3):
         training = demonstrations(task, 8, seed=seed, cache_dir=tmp_path)
         assert not held_out & {row.tobytes() for row in training.starts}
+
+
+@pytest.mark.parametrize("task", ["rendezvous", "docking"])
+def test_the_sealed_test_split_is_screened_alike_and_shares_no_start(task, tmp_path):
+    problem = RendezvousProblem() if task == "rendezvous" else DockingProblem()
+    search = evaluation_set(task, 64, cache_dir=tmp_path)
+    test = evaluation_set(task, 64, cache_dir=tmp_path, split="test")
+    assert DEFAULT_EVAL_SIZE == {"search": 128, "test": 1024}
+    np.testing.assert_array_equal(search.starts, evaluation_starts(task, 64, cache_dir=tmp_path)[0])
+    others = [
+        search,
+        demonstrations(task, 64, cache_dir=tmp_path),
+        recovery_demonstrations(task, 16, cache_dir=tmp_path),
+    ]
+    for other in others:
+        assert shared_starts(test.starts, other.starts) == 0
+    assert shared_starts(test.starts, test.starts[:5]) == 5  # the check itself sees a shared start
+    # Screened exactly like the search split: the expert reaches the target from every start, over
+    # the whole horizon, in the same observation layout; nested in n like every set.
+    finals = replay(test, problem)
+    target = np.zeros((64, 3)) if task == "rendezvous" else test.goals
+    np.testing.assert_allclose(finals[:, :3], target, atol=1e-6)
+    assert test.trajectory_thrust().shape == (64, problem.horizon, 3)
+    np.testing.assert_array_equal(
+        evaluation_set(task, 8, cache_dir=tmp_path, split="test").starts, test.starts[:8]
+    )
+    # Content keys name the data: equal for equal sets, different for different ones.
+    assert test.content_key == evaluation_set(task, 64, cache_dir=tmp_path, split="test").content_key
+    assert test.content_key != search.content_key
+
+
+def test_evaluation_splits_reject_an_unknown_split(tmp_path):
+    with pytest.raises(ValueError, match="split must be one of"):
+        evaluation_set("rendezvous", 4, cache_dir=tmp_path, split="train")
+    with pytest.raises(ValueError, match="differ in length"):
+        recovery_demonstrations("rendezvous", 3, cache_dir=tmp_path).trajectory_thrust()
 
 
 @pytest.mark.parametrize("task", ["rendezvous", "docking"])

@@ -200,8 +200,9 @@ def test_sb3_policy_batch_matches_the_env(one_torch_thread):
     model = PPO("MlpPolicy", train_envs, n_steps=64, batch_size=64, n_epochs=1, seed=0)
     model.learn(128)  # a moved policy and moved normalisation statistics
     evaluate = compare.EvalSet(family, cbf=True)
-    evaluate.starts, evaluate.goals = evaluate.starts[:16], evaluate.goals[:16]
-    metrics = evaluate(compare.SB3Policy(model, family.PROBLEM.u_max))
+    evaluate.held_out = evaluate.held_out.take(16)
+    evaluate.starts, evaluate.goals = evaluate.held_out.starts, evaluate.held_out.goals
+    metrics = evaluate(compare.SB3Policy(model))
 
     envs = gym.make_vec(
         "cwh_envs:CWHDockKOZ-v0", num_envs=16, vectorization_mode="vector_entry_point", cbf_margin=0.5
@@ -211,6 +212,7 @@ def test_sb3_policy_batch_matches_the_env(one_torch_thread):
         action, _ = model.predict(train_envs.normalize_obs(obs), deterministic=True)
         obs, _, terminated, _, info = envs.step(action)
     assert terminated.all()
-    assert metrics["mean_terminal_distance"] == pytest.approx(info["terminal_distance"].mean(), rel=1e-6)
-    assert metrics["violation_rate"] == pytest.approx(info["violation_rate"].mean(), abs=1e-12)
-    assert metrics["success_rate"] == pytest.approx(np.mean(info["is_success"]))
+    # The same core steps both (cwh_envs.rollout): equal, not merely close.
+    assert metrics["mean_terminal_distance"] == float(info["terminal_distance"].mean())
+    assert metrics["violation_rate"] == float(info["violation_rate"].mean())
+    assert metrics["success_rate"] == float(np.mean(info["is_success"]))

@@ -18,9 +18,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
+import cwh_envs
 from autoresearch.family import Family
 from autoresearch.loop.editable import read_region
 from autoresearch.loop.runner import parse_progress
@@ -28,7 +30,7 @@ from autoresearch.loop.runner import parse_progress
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")
 METRICS = {"rendezvous": "mean_terminal_distance", "docking": "score"}
-TINY_DATA = {"POOL_DEMOS": 8, "N_EVAL": 12, "POOL_RECOVERY": 4}
+TINY_DATA = {"POOL_DEMOS": 8, "N_EVAL": 12, "N_TEST": 24, "POOL_RECOVERY": 4}
 TINY_BUDGET = {"N_DEMOS": 4, "EPOCHS": 2, "BATCH_SIZE": 64, "HIDDEN_DIM": 16, "N_LAYERS": 1}
 
 
@@ -101,7 +103,7 @@ def test_prepare_check_names_what_is_missing_then_passes_once_warm(name, tmp_pat
     cache = tmp_path / "cache"
     cold = run(family / "prepare.py", "--check", cache=cache)
     assert cold.returncode != 0
-    assert "training pool" in cold.stderr and "evaluation starts" in cold.stderr and "missing" in cold.stderr
+    assert all(part in cold.stderr for part in ("training pool", "search split", "test split", "missing"))
     assert ("recovery pool" in cold.stderr) == (name == "docking")
     assert not cache.exists() or not any(cache.iterdir()), "--check must not build anything"
     run(family / "prepare.py", "--warm-cache", cache=cache, check=True)
@@ -142,6 +144,20 @@ def test_train_prints_one_final_metric_appends_one_line_and_is_deterministic(nam
         assert field in first
     if name == "docking":
         assert {"violation_rate", "min_clearance", "strict_feasible"} <= set(first)
+    assert first["eval_split"] == "search" and "test_split" not in first["datasets"]
+    assert {"effort_ratio", "delta_v_ratio", "mean_delta_v"} <= set(first)
+
+    # --eval-split test: the same training scored on the sealed split, the search split kept beside it
+    result = run(
+        family / "train.py", "--seed", "3", "--run-id", "t", "--runs-log", str(log),
+        "--out", str(tmp_path / "out_t"), "--eval-split", "test", cache=cache, check=True,
+    )  # fmt: skip
+    sealed = final_metric(result.stdout)
+    assert sealed["eval_split"] == "test" and sealed["best_train_loss"] == first["best_train_loss"]
+    searched = {k: v for k, v in first.items() if k in sealed["search_split"]}
+    assert sealed["search_split"] == searched  # bit for bit: one training, both splits
+    assert sealed[METRICS[name]] != first[METRICS[name]]  # 24 other starts
+    assert sealed["datasets"] == {**first["datasets"], "test_split": sealed["datasets"]["test_split"]}
 
 
 @pytest.mark.slow
@@ -156,12 +172,12 @@ def test_saved_policy_reloads_and_reproduces_the_metric(name, warm, tmp_path, mo
     train = import_train(family / "train.py")
     policy, saved = train.load_policy(tmp_path / "out")
     assert saved["config"] == record["config"] and saved["record"] == record
-    starts, goals = train.evaluation_starts(train.TASK, train.N_EVAL, problem=train.PROBLEM)
+    held_out = train.evaluation_set(train.TASK, train.N_EVAL, problem=train.PROBLEM)
     if name == "rendezvous":
-        metrics = train.rendezvous_metrics(train.fly(policy, starts))
+        metrics = train.evaluate(policy, held_out)
     else:
-        metrics = train.evaluate(policy, starts, goals, record["config"]["RUNTIME_CBF_FILTER"])
-    assert metrics[METRICS[name]] == pytest.approx(record[METRICS[name]], rel=1e-9, abs=1e-12)
+        metrics = train.evaluate(policy, held_out, record["config"]["RUNTIME_CBF_FILTER"])
+    assert metrics[METRICS[name]] == record[METRICS[name]]
 
     png = tmp_path / "report.png"
     run(
@@ -195,50 +211,116 @@ def test_a_failed_run_exits_nonzero_without_final_metric(name, learning_rate, me
     assert not log.exists()
 
 
-def test_docking_score_and_strict_gate(monkeypatch):
+@pytest.mark.slow
+@pytest.mark.parametrize("name", FAMILIES)
+def test_the_family_scores_exactly_what_gym_make_flies(name, warm, tmp_path, monkeypatch):
+    """One source of truth for the metric: each evaluation start flown alone through gym.make (the
+    CBFSafetyFilter wrapper where the configuration flies the filter) ends where the family's batched
+    evaluation says, to the bit: terminal distance, violation rate, clearance and success."""
+    family, cache = warm[name]
+    run(family / "train.py", "--runs-log", str(tmp_path / "log"), "--out", str(tmp_path / "out"), cache=cache)
+    monkeypatch.setenv("CWH_ENVS_CACHE", str(cache))
+    train = import_train(family / "train.py")
+    policy, saved = train.load_policy(tmp_path / "out")
+    held_out = train.evaluation_set(train.TASK, train.N_EVAL, problem=train.PROBLEM)
+    cbf = saved["config"].get("RUNTIME_CBF_FILTER", False)
+    flight = train.fly(policy, held_out.starts, held_out.goals, cbf) if name == "docking" else None
+    flight = flight or train.fly(policy, held_out.starts)
+    env_id = {"rendezvous": "CWHRendezvous-v0", "docking": "CWHDockKOZ-v0"}[name]
+    envs, observations = [], []
+    for start, goal in zip(held_out.starts, held_out.goals, strict=True):
+        env = gym.make(env_id)
+        env = cwh_envs.CBFSafetyFilter(env, margin=train.PROBLEM.margin) if cbf else env
+        options = {"initial_state": start, **({"goal": goal} if name == "docking" else {})}
+        envs.append(env)
+        observations.append(env.reset(options=options)[0])
+    for _ in range(train.PROBLEM.horizon):
+        # One batched forward pass for every env, as the family's evaluation does: the network's
+        # rounding is not what is compared here, the physics and the metric are.
+        steps = [
+            env.step(action) for env, action in zip(envs, policy.act(np.stack(observations)), strict=True)
+        ]
+        observations = [step[0] for step in steps]
+    infos = [step[4] for step in steps]
+    assert all(step[2] for step in steps)
+    np.testing.assert_array_equal([i["terminal_distance"] for i in infos], flight.terminal_distance)
+    np.testing.assert_array_equal([i["is_success"] for i in infos], flight.is_success)
+    if name == "docking":
+        np.testing.assert_array_equal([i["violation_rate"] for i in infos], flight.violation_rate)
+        np.testing.assert_array_equal([i["min_clearance"] for i in infos], flight.min_clearance)
+    metrics = train.evaluate(policy, held_out, cbf) if name == "docking" else train.evaluate(policy, held_out)
+    assert metrics[METRICS[name]] == saved["record"][METRICS[name]]
+
+
+def _flight(train, terminal_distance, *, violation=0.0, clearance=3.0, speed=0.0):
+    """A docking Flight with the env's per-start outcomes given (ten starts unless arrays say)."""
+    distance = np.asarray(terminal_distance, dtype=float)
+    n, problem = len(distance), train.PROBLEM
+    violation = np.broadcast_to(np.asarray(violation, dtype=float), n)
+    clearance = np.broadcast_to(np.asarray(clearance, dtype=float), n)
+    speed = np.broadcast_to(np.asarray(speed, dtype=float), n)
+    success = (distance < problem.success_distance) & (speed < problem.success_speed) & (violation == 0)
+    thrust = np.full((n, problem.horizon, 3), 0.1)
+    return train.Flight(
+        states=np.zeros((n, problem.horizon + 1, 6)),
+        thrust=thrust,
+        goals=np.zeros((n, 3)),
+        terminal_distance=distance,
+        terminal_speed=speed,
+        is_success=success,
+        violation_rate=violation,
+        min_clearance=clearance,
+    )
+
+
+def test_docking_score_and_strict_gate():
     train = import_train(ROOT / "families" / "docking" / "train.py")
-    problem = train.PROBLEM
-    horizon, n = problem.horizon, 10
-    goals = np.tile([problem.goal_radius, 0.0, 0.0], (n, 1))
-    states = np.zeros((n, horizon + 1, 6))
-    states[:, :, :3] = goals[:, None, :]  # parked on the docking point: clearance 3 m throughout
+    horizon, n = train.PROBLEM.horizon, 10
+    expert = np.full((n, horizon, 3), 0.2)
 
-    perfect = train.docking_metrics(states, goals)
-    assert perfect["score"] == 0.0 and perfect["success_rate"] == 1.0 and perfect["strict_feasible"] is True
+    def metrics(flight):
+        return train.docking_metrics(flight, expert)
 
-    grazing = states.copy()
-    grazing[0, 5, :3] = [problem.koz_radius, 0.0, 0.0]  # on the sphere: clearance 0 is not a violation
-    assert train.docking_metrics(grazing, goals)["strict_feasible"] is True
+    perfect = _flight(train, np.zeros(n))
+    assert metrics(perfect)["score"] == 0.0 and metrics(perfect)["success_rate"] == 1.0
+    assert metrics(perfect)["strict_feasible"] is True
+    assert (
+        metrics(perfect)["effort_ratio"] == pytest.approx(0.25) and metrics(perfect)["delta_v_ratio"] == 0.5
+    )
 
-    inside = states.copy()
-    inside[0, 5:7, :3] = [problem.koz_radius - 1.0, 0.0, 0.0]  # two steps inside the keep-out
-    metrics = train.docking_metrics(inside, goals)
-    assert metrics["violation_rate"] == pytest.approx(2 / horizon / n)
-    assert metrics["score"] == pytest.approx(10.0 * 2 / horizon / n)
-    assert metrics["min_clearance"] == pytest.approx(-1.0)
-    assert metrics["success_rate"] == 0.9  # a violating start is never a success
-    assert metrics["strict_feasible"] is False
+    grazing = _flight(train, np.zeros(n), clearance=[0.0] + [3.0] * (n - 1))  # on the sphere: no violation
+    assert metrics(grazing)["strict_feasible"] is True
 
-    missed = states.copy()
-    missed[:3, -1, 0] += 2.0  # three of ten starts end 2 m from the docking point: success 0.7 < 0.8
-    metrics = train.docking_metrics(missed, goals)
-    assert metrics["violation_rate"] == 0.0 and metrics["min_clearance"] >= 0.0
-    assert metrics["success_rate"] == pytest.approx(0.7) and metrics["strict_feasible"] is False
-    assert metrics["score"] == pytest.approx(0.6)
+    two_steps = np.array([2 / horizon] + [0.0] * (n - 1))
+    inside = _flight(train, np.zeros(n), violation=two_steps, clearance=[-1.0] + [3.0] * (n - 1))
+    m = metrics(inside)
+    assert m["violation_rate"] == pytest.approx(2 / horizon / n)
+    assert m["score"] == pytest.approx(10.0 * 2 / horizon / n)
+    assert m["min_clearance"] == -1.0 and m["violating_starts"] == 1
+    assert m["success_rate"] == 0.9  # a violating start is never a success
+    assert m["strict_feasible"] is False
 
-    slow = states.copy()
-    slow[:, -1, 3] = 0.06  # at the dock but too fast: not a success
-    assert train.docking_metrics(slow, goals)["success_rate"] == 0.0
+    missed = _flight(train, [2.0] * 3 + [0.0] * (n - 3))  # three of ten 2 m off: success 0.7 < 0.8
+    m = metrics(missed)
+    assert m["violation_rate"] == 0.0 and m["min_clearance"] >= 0.0
+    assert m["success_rate"] == pytest.approx(0.7) and m["strict_feasible"] is False
+    assert m["score"] == pytest.approx(0.6)
+
+    slow = _flight(train, np.zeros(n), speed=0.06)  # at the dock but too fast: not a success
+    assert metrics(slow)["success_rate"] == 0.0
 
     # The graded constraints are the same gate: all <= 0 exactly when strict_feasible, and they say
     # by how much each case misses (family.json's constraints_field, read by the key-free arms).
     family = Family.load(ROOT / "families" / "docking")
-    for case in (states, grazing, inside, missed, slow):
-        metrics = train.docking_metrics(case, goals)
-        graded = family.constraints(metrics)
-        assert (max(graded.values()) <= 0.0) is metrics["strict_feasible"] is family.is_feasible(metrics)
-    assert family.constraints(train.docking_metrics(missed, goals))["success_shortfall"] == pytest.approx(0.1)
-    assert family.constraints(train.docking_metrics(inside, goals))["clearance_deficit"] == pytest.approx(1.0)
+    for case in (perfect, grazing, inside, missed, slow):
+        graded = family.constraints(metrics(case))
+        assert (
+            (max(graded.values()) <= 0.0)
+            is metrics(case)["strict_feasible"]
+            is family.is_feasible(metrics(case))
+        )
+    assert family.constraints(metrics(missed))["success_shortfall"] == pytest.approx(0.1)
+    assert family.constraints(metrics(inside))["clearance_deficit"] == pytest.approx(1.0)
 
 
 @pytest.mark.parametrize("name", FAMILIES)

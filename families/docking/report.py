@@ -39,7 +39,7 @@ def main() -> int:
     cbf = saved["config"]["RUNTIME_CBF_FILTER"]
     starts, goals = evaluation_starts(train.TASK, train.N_EVAL, problem=problem)
     starts, goals = starts[: args.starts], goals[: args.starts]
-    flown, _, _ = train.fly(policy, starts, goals, cbf)
+    flown = train.fly(policy, starts, goals, cbf).states
     expert = np.array([solve_docking(x0, g, problem)[0] for x0, g in zip(starts, goals, strict=True)])
     time_s = np.arange(problem.horizon + 1) * problem.dt
 

@@ -2,18 +2,23 @@
 
 One file, CleanRL style: the editable configuration on top, the fixed machinery below.
 
-    python train.py [--seed 0] [--run-id ID] [--runs-log runs.jsonl] [--out out]
+    python train.py [--seed 0] [--run-id ID] [--runs-log runs.jsonl] [--out out] [--eval-split search]
 
 A time-conditioned MLP maps [r, v, g, tau] to thrust / u_max and is trained by MSE on screened
 expert demonstrations (Eq. bc_loss), optionally augmented with recovery demonstrations from
-perturbed states. It is then flown in closed loop from the 128 held-out far-side starts at once
-on the env's own (A, B), through the two-step predictive CBF filter when RUNTIME_CBF_FILTER is
-on. The primary metric is score = mean terminal distance + 10 x mean keep-out violation rate
-(Eq. rpo_score, lower is better); a run is strict-feasible when success >= 0.80, the violation
-rate is exactly 0 and the minimum keep-out clearance is >= 0. The run ends with one line
+perturbed states. It is then flown in closed loop from held-out far-side starts at once through
+the env's own batched core (cwh_envs.rollout.fly), through the two-step predictive CBF filter
+when RUNTIME_CBF_FILTER is on. The primary metric is score = mean terminal distance + 10 x mean
+keep-out violation rate (Eq. rpo_score, lower is better); a run is strict-feasible when success
+>= 0.80, the violation rate is exactly 0 and the minimum keep-out clearance is >= 0. By default
+the starts are the 128 of the search split, the only ones a search may select on;
+``--eval-split test`` scores the record on the 1024 starts of the sealed test split and keeps the
+search split's metrics of the same policy under ``search_split``. The run ends with one line
 ``FINAL_METRIC: {json}`` that is also appended to the runs log. At four evenly spaced epochs it
-prints ``PROGRESS: {"step": epoch, METRIC: value}``, the metric on the first 16 evaluation starts,
-so that ``autoresearch loop --early-stop`` can stop a hopeless run.
+prints ``PROGRESS: {"step": epoch, METRIC: value}``, the metric on the first 16 search starts, so
+that ``autoresearch loop --early-stop`` can stop a hopeless run. Fuel is logged, never
+optimised: ``effort_ratio`` (sum of |u|^2 dt, the quantity the expert minimises) and
+``delta_v_ratio`` over the expert's own from the same starts.
 """
 
 from __future__ import annotations
@@ -33,10 +38,10 @@ import torch
 from filelock import FileLock
 from torch import nn
 
-from cwh_envs.cbf import safe_actions
-from cwh_envs.datasets import demonstrations, evaluation_starts, recovery_demonstrations
-from cwh_envs.observations import docking_observation
+from cwh_envs.datasets import Demonstrations, demonstrations, evaluation_set, recovery_demonstrations
 from cwh_envs.problems import DockingProblem
+from cwh_envs.rollout import Flight, control_effort
+from cwh_envs.rollout import fly as fly_policy
 
 # ===== Editable Configuration (the agent may change these values only) =====
 N_DEMOS = 64  # expert trajectories in the training set (the first N of a fixed screened pool)
@@ -60,8 +65,9 @@ VIOLATION_WEIGHT = 10.0  # Eq. rpo_score: one sustained violation outweighs the 
 POOL_DEMOS = 256  # the N_DEMOS upper bound: one fixed pool, so a warm cache covers every config
 MAX_RECOVERY_FRAC = 0.5  # the RECOVERY_AUGMENT_FRAC upper bound
 POOL_RECOVERY = round(MAX_RECOVERY_FRAC * POOL_DEMOS)  # recovery trajectories: also one fixed pool
-N_EVAL = 128  # held-out, screened far-side evaluation starts
-N_PROGRESS = 16  # evaluation starts behind each PROGRESS line: a cheap proxy of the metric
+N_EVAL = 128  # held-out, screened far-side evaluation starts: the search split
+N_TEST = 1024  # the sealed test split, screened alike (--eval-split test)
+N_PROGRESS = 16  # search starts behind each PROGRESS line: a cheap proxy of the metric
 PROGRESS_POINTS = 4  # PROGRESS lines per run, at evenly spaced epochs (the last one included)
 DATA_SEED = 0  # the pools do not move with --seed; the seed varies only initialisation and batching
 TORCH_THREADS = 1  # fixed: reproducible on any host, and the audit runs two trainings on two cores
@@ -85,7 +91,7 @@ ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 
 
 class Policy(nn.Module):
-    """MLP on standardised observations; outputs thrust / u_max. ``act`` returns clipped newtons."""
+    """MLP on standardised observations; outputs thrust / u_max. ``act`` returns the env action (thrust / u_max, clipped)."""
 
     def __init__(self, config: dict, obs_mean: torch.Tensor, obs_std: torch.Tensor, u_max: float):
         super().__init__()
@@ -107,10 +113,9 @@ class Policy(nn.Module):
 
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """Observations (N, 10) in env units -> thrust (N, 3) in newtons, saturated to the box."""
+        """Observations (N, 10) as the env shows them -> actions (N, 3) as it takes them: thrust / u_max in [-1, 1]."""
         x = torch.as_tensor(obs, dtype=torch.float32, device=self.obs_mean.device)
-        u = self.u_max * self((x - self.obs_mean) / self.obs_std)
-        return np.clip(u.double().cpu().numpy(), -self.u_max, self.u_max)
+        return np.clip(self((x - self.obs_mean) / self.obs_std).double().cpu().numpy(), -1.0, 1.0)
 
 
 def build_policy(config: dict, obs_mean=None, obs_std=None) -> Policy:
@@ -165,18 +170,20 @@ def seed_everything(seed: int) -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Observations (M, 10) and expert thrust (M, 3) [N]: N_DEMOS demos plus the recovery share."""
-    demos = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM).take(config["N_DEMOS"])
-    obs, actions = [demos.observations], [demos.actions]
+def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Observations (M, 10) and expert thrust (M, 3) [N]: N_DEMOS demos plus the recovery share,
+    and the content keys of the sets they come from."""
+    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM)
+    demos = pool.take(config["N_DEMOS"])
+    obs, actions, keys = [demos.observations], [demos.actions], {"train_pool": pool.content_key}
     n_recovery = round(config["RECOVERY_AUGMENT_FRAC"] * config["N_DEMOS"])
     if n_recovery > 0:
-        recovery = recovery_demonstrations(TASK, POOL_RECOVERY, seed=DATA_SEED, problem=PROBLEM).take(
-            n_recovery
-        )
+        recovery_pool = recovery_demonstrations(TASK, POOL_RECOVERY, seed=DATA_SEED, problem=PROBLEM)
+        recovery = recovery_pool.take(n_recovery)
         obs.append(recovery.observations)
         actions.append(recovery.actions)
-    return np.concatenate(obs), np.concatenate(actions)
+        keys["recovery_pool"] = recovery_pool.content_key
+    return np.concatenate(obs), np.concatenate(actions), keys
 
 
 def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int, report=None):
@@ -226,52 +233,23 @@ def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.devi
     return policy.eval(), best_loss
 
 
-def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool) -> tuple[np.ndarray, int, int]:
-    """Closed-loop states (N, H+1, 6) of every start at once on the env's (A, B); no expert in the loop.
-
-    With ``cbf`` every command passes the two-step predictive CBF filter first; also returns how
-    many (start, step) commands the filter edited and how many it could not make safe.
-    """
-    a, b = PROBLEM.matrices()
-    horizon = PROBLEM.horizon
-    states = np.empty((len(starts), horizon + 1, 6))
-    states[:, 0] = starts
-    edited = unsafe = 0
-    for k in range(horizon):
-        u = policy.act(docking_observation(states[:, k], goals, k, horizon))
-        if cbf:
-            filtered = safe_actions(
-                u,
-                states[:, k],
-                a,
-                b,
-                koz_radius=PROBLEM.koz_radius,
-                margin=PROBLEM.margin,
-                u_max=PROBLEM.u_max,
-            )
-            u = filtered.u
-            edited += int(filtered.active.sum())
-            unsafe += int(filtered.infeasible.sum())
-        states[:, k + 1] = states[:, k] @ a.T + u @ b.T
-    return states, edited, unsafe
+def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool) -> Flight:
+    """Every start flown at once through the env's own batched core; no expert in the loop. With
+    ``cbf`` every action passes the two-step predictive CBF filter (margin PROBLEM.margin) first."""
+    return fly_policy(PROBLEM, policy.act, starts, goals, cbf_margin=PROBLEM.margin if cbf else None)
 
 
-def docking_metrics(states: np.ndarray, goals: np.ndarray) -> dict:
-    """Eq. rpo_score and the strict gate from trajectories (N, H+1, 6); the env's own definitions:
-    a violation is a step ending strictly inside the keep-out sphere, counted over steps 1..H."""
-    terminal_distance = np.linalg.norm(states[:, -1, :3] - goals, axis=1)
-    terminal_speed = np.linalg.norm(states[:, -1, 3:], axis=1)
-    clearance = np.linalg.norm(states[:, 1:, :3], axis=2) - PROBLEM.koz_radius  # (N, H)
-    violation_rate = (clearance < 0.0).mean(axis=1)
-    success = (
-        (terminal_distance < PROBLEM.success_distance)
-        & (terminal_speed < PROBLEM.success_speed)
-        & (violation_rate == 0.0)
-    )
-    mean_violation = float(violation_rate.mean())
-    min_clearance = float(clearance.min())
-    success_rate = float(success.mean())
-    return {
+def docking_metrics(flight: Flight, expert_thrust: np.ndarray) -> dict:
+    """Eq. rpo_score and the strict gate from the env's per-start outcomes (a violation is a step
+    ending strictly inside the keep-out, over steps 1..H); effort is measured against the expert's
+    thrust (N, H, 3) from the same starts (ratios of the sums over the starts)."""
+    terminal_distance, violation = flight.terminal_distance, flight.violation_rate
+    mean_violation = float(violation.mean())
+    min_clearance = float(flight.min_clearance.min())
+    success_rate = float(flight.is_success.mean())
+    energy, delta_v = control_effort(flight.thrust, PROBLEM)
+    expert_energy, expert_delta_v = control_effort(expert_thrust, PROBLEM)
+    metrics = {
         METRIC: float(terminal_distance.mean()) + VIOLATION_WEIGHT * mean_violation,
         "mean_terminal_distance": float(terminal_distance.mean()),
         "success_rate": success_rate,
@@ -286,20 +264,24 @@ def docking_metrics(states: np.ndarray, goals: np.ndarray) -> dict:
             "violation_rate": mean_violation,
             "clearance_deficit": -min_clearance,
         },
-        "violating_starts": int((violation_rate > 0).sum()),
+        "violating_starts": int((violation > 0).sum()),
         "median_terminal_distance": float(np.median(terminal_distance)),
         "max_terminal_distance": float(terminal_distance.max()),
-        "mean_terminal_speed": float(terminal_speed.mean()),
+        "mean_terminal_speed": float(flight.terminal_speed.mean()),
+        "effort_ratio": float(energy.sum() / expert_energy.sum()),
+        "delta_v_ratio": float(delta_v.sum() / expert_delta_v.sum()),
+        "mean_delta_v": float(delta_v.mean()),
     }
+    if flight.cbf_active is not None:
+        metrics["cbf_active_rate"] = float(flight.cbf_active.mean())
+        metrics["cbf_infeasible_steps"] = int(flight.cbf_infeasible.sum())
+    return metrics
 
 
-def evaluate(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool) -> dict:
-    states, edited, unsafe = fly(policy, starts, goals, cbf)
-    return {
-        **docking_metrics(states, goals),
-        "cbf_active_rate": edited / (len(starts) * PROBLEM.horizon),
-        "cbf_infeasible_steps": unsafe,
-    }
+def evaluate(policy: Policy, held_out: Demonstrations, cbf: bool) -> dict:
+    """The metrics of ``policy`` on an evaluation split (cwh_envs.datasets.evaluation_set)."""
+    flight = fly(policy, held_out.starts, held_out.goals, cbf)
+    return docking_metrics(flight, held_out.trajectory_thrust())
 
 
 def append_record(path: Path, record: dict) -> None:
@@ -318,36 +300,50 @@ def main() -> None:
     parser.add_argument("--run-id", default=None, help="defaults to a fresh random id")
     parser.add_argument("--runs-log", type=Path, default=Path(__file__).with_name("runs.jsonl"))
     parser.add_argument("--out", type=Path, default=Path("out"), help="directory for policy.pt")
+    parser.add_argument(
+        "--eval-split",
+        choices=("search", "test"),
+        default="search",
+        help="the split the record is scored on; test also keeps the search split's metrics (search_split)",
+    )
     args = parser.parse_args()
     config = {name: globals()[name] for name in CONFIG_NAMES}
     check_config(config)
     run_id = args.run_id or uuid.uuid4().hex[:12]
     device = seed_everything(args.seed)
+    cbf = config["RUNTIME_CBF_FILTER"]
 
-    obs, actions = load_training_set(config)
-    eval_starts, eval_goals = evaluation_starts(TASK, N_EVAL, problem=PROBLEM)
+    obs, actions, datasets = load_training_set(config)
+    search = evaluation_set(TASK, N_EVAL, problem=PROBLEM, split="search")
+    datasets["search_split"] = search.content_key
+    first = search.take(N_PROGRESS)
 
     def report(epoch: int, policy: Policy) -> None:
-        starts, goals = eval_starts[:N_PROGRESS], eval_goals[:N_PROGRESS]
-        value = evaluate(policy, starts, goals, config["RUNTIME_CBF_FILTER"])[METRIC]
+        value = evaluate(policy, first, cbf)[METRIC]
         print("PROGRESS: " + json.dumps({"step": epoch, METRIC: value}, allow_nan=False), flush=True)
 
     started = time.perf_counter()
     policy, best_loss = train(config, obs, actions, device, args.seed, report)
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
-    metrics = evaluate(policy, eval_starts, eval_goals, config["RUNTIME_CBF_FILTER"])
+    metrics = evaluate(policy, search, cbf)
+    if args.eval_split == "test":
+        test = evaluation_set(TASK, N_TEST, problem=PROBLEM, split="test")
+        datasets["test_split"] = test.content_key
+        metrics = {**evaluate(policy, test, cbf), "search_split": metrics}
     eval_seconds = time.perf_counter() - started
 
     record = {
         "run_id": run_id,
         **metrics,
+        "eval_split": args.eval_split,
         "best_train_loss": best_loss,
         "train_seconds": round(train_seconds, 3),
         "eval_seconds": round(eval_seconds, 3),
         "n_params": sum(p.numel() for p in policy.parameters()),
         "n_train_pairs": len(obs),
         "seed": args.seed,
+        "datasets": datasets,
         "config": config,
     }
     args.out.mkdir(parents=True, exist_ok=True)

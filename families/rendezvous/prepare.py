@@ -19,6 +19,7 @@ NEEDS = DataNeeds(
     pool_demos=train.POOL_DEMOS,
     data_seed=train.DATA_SEED,
     n_eval=train.N_EVAL,
+    n_test=train.N_TEST,
     obs_dim=train.OBS_DIM,
 )
 

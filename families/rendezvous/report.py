@@ -35,7 +35,7 @@ def main() -> int:
     policy, saved = train.load_policy(args.policy)
     starts, _ = evaluation_starts(train.TASK, train.N_EVAL, problem=train.PROBLEM)
     starts = starts[: args.starts]
-    flown = train.fly(policy, starts)
+    flown = train.fly(policy, starts).states
     expert = np.array([solve_rendezvous(x0, train.PROBLEM)[0] for x0 in starts])
     time_s = np.arange(train.PROBLEM.horizon + 1) * train.PROBLEM.dt
 

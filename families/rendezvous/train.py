@@ -2,15 +2,20 @@
 
 One file, CleanRL style: the editable configuration on top, the fixed machinery below.
 
-    python train.py [--seed 0] [--run-id ID] [--runs-log runs.jsonl] [--out out]
+    python train.py [--seed 0] [--run-id ID] [--runs-log runs.jsonl] [--out out] [--eval-split search]
 
 A time-conditioned MLP maps [x, y, z, vx, vy, vz, tau] to thrust / u_max and is trained by MSE
-on screened expert demonstrations (Eq. bc_loss). It is then flown in closed loop from the 128
-held-out starts at once on the env's own (A, B); the primary metric is the mean terminal
-distance to the target in metres (lower is better). The run ends with one line
-``FINAL_METRIC: {json}`` that is also appended to the runs log. At four evenly spaced epochs it
-prints ``PROGRESS: {"step": epoch, METRIC: value}``, the metric on the first 16 evaluation starts,
-so that ``autoresearch loop --early-stop`` can stop a hopeless run.
+on screened expert demonstrations (Eq. bc_loss). It is then flown in closed loop from held-out
+starts at once through the env's own batched core (cwh_envs.rollout.fly); the primary metric is
+the mean terminal distance to the target in metres (lower is better). By default the starts are
+the 128 of the search split, the only ones a search may select on; ``--eval-split test`` scores
+the record on the 1024 starts of the sealed test split and keeps the search split's metrics of
+the same policy under ``search_split``. The run ends with one line ``FINAL_METRIC: {json}``
+that is also appended to the runs log. At four evenly spaced epochs it prints
+``PROGRESS: {"step": epoch, METRIC: value}``, the metric on the first 16 search starts, so that
+``autoresearch loop --early-stop`` can stop a hopeless run. Fuel is logged, never optimised:
+``effort_ratio`` (sum of |u|^2 dt, the quantity the expert minimises) and ``delta_v_ratio`` over
+the expert's own from the same starts.
 """
 
 from __future__ import annotations
@@ -30,9 +35,10 @@ import torch
 from filelock import FileLock
 from torch import nn
 
-from cwh_envs.datasets import demonstrations, evaluation_starts
-from cwh_envs.observations import rendezvous_observation
+from cwh_envs.datasets import Demonstrations, demonstrations, evaluation_set
 from cwh_envs.problems import RendezvousProblem
+from cwh_envs.rollout import Flight, control_effort
+from cwh_envs.rollout import fly as fly_policy
 
 # ===== Editable Configuration (the agent may change these values only) =====
 N_DEMOS = 32  # expert trajectories in the training set (the first N of a fixed screened pool)
@@ -51,8 +57,9 @@ TASK = "rendezvous"
 METRIC = "mean_terminal_distance"
 PROBLEM = RendezvousProblem()  # every constant: horizon, u_max, success thresholds, (A, B)
 POOL_DEMOS = 1024  # the N_DEMOS upper bound: one fixed pool, so a warm cache covers every config
-N_EVAL = 128  # held-out, reachability-screened evaluation starts
-N_PROGRESS = 16  # evaluation starts behind each PROGRESS line: a cheap proxy of the metric
+N_EVAL = 128  # held-out, reachability-screened evaluation starts: the search split
+N_TEST = 1024  # the sealed test split, screened alike (--eval-split test)
+N_PROGRESS = 16  # search starts behind each PROGRESS line: a cheap proxy of the metric
 PROGRESS_POINTS = 4  # PROGRESS lines per run, at evenly spaced epochs (the last one included)
 DATA_SEED = 0  # the pool does not move with --seed; the seed varies only initialisation and batching
 TORCH_THREADS = 1  # fixed: reproducible on any host, and the audit runs two trainings on two cores
@@ -73,7 +80,7 @@ ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 
 
 class Policy(nn.Module):
-    """MLP on standardised observations; outputs thrust / u_max. ``act`` returns clipped newtons."""
+    """MLP on standardised observations; outputs thrust / u_max. ``act`` returns the env action (thrust / u_max, clipped)."""
 
     def __init__(self, config: dict, obs_mean: torch.Tensor, obs_std: torch.Tensor, u_max: float):
         super().__init__()
@@ -95,10 +102,9 @@ class Policy(nn.Module):
 
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """Observations (N, 7) in env units -> thrust (N, 3) in newtons, saturated to the box."""
+        """Observations (N, 7) as the env shows them -> actions (N, 3) as it takes them: thrust / u_max in [-1, 1]."""
         x = torch.as_tensor(obs, dtype=torch.float32, device=self.obs_mean.device)
-        u = self.u_max * self((x - self.obs_mean) / self.obs_std)
-        return np.clip(u.double().cpu().numpy(), -self.u_max, self.u_max)
+        return np.clip(self((x - self.obs_mean) / self.obs_std).double().cpu().numpy(), -1.0, 1.0)
 
 
 def build_policy(config: dict, obs_mean=None, obs_std=None) -> Policy:
@@ -148,10 +154,12 @@ def seed_everything(seed: int) -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Observations (M, 7) and expert thrust (M, 3) [N] of the first N_DEMOS pool trajectories."""
-    demos = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM).take(config["N_DEMOS"])
-    return demos.observations, demos.actions
+def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Observations (M, 7) and expert thrust (M, 3) [N] of the first N_DEMOS pool trajectories, and
+    the content keys of the sets they come from."""
+    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM)
+    demos = pool.take(config["N_DEMOS"])
+    return demos.observations, demos.actions, {"train_pool": pool.content_key}
 
 
 def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int, report=None):
@@ -201,30 +209,32 @@ def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.devi
     return policy.eval(), best_loss
 
 
-def fly(policy: Policy, starts: np.ndarray) -> np.ndarray:
-    """Closed-loop states (N, H+1, 6) of every start at once on the env's (A, B); no expert in the loop."""
-    a, b = PROBLEM.matrices()
-    horizon = PROBLEM.horizon
-    states = np.empty((len(starts), horizon + 1, 6))
-    states[:, 0] = starts
-    for k in range(horizon):
-        u = policy.act(rendezvous_observation(states[:, k], k, horizon))
-        states[:, k + 1] = states[:, k] @ a.T + u @ b.T
-    return states
+def fly(policy: Policy, starts: np.ndarray) -> Flight:
+    """Every start flown at once through the env's own batched core; no expert in the loop."""
+    return fly_policy(PROBLEM, policy.act, starts)
 
 
-def rendezvous_metrics(states: np.ndarray) -> dict:
-    """The primary metric and its auxiliaries from closed-loop trajectories (N, H+1, 6)."""
-    distance = np.linalg.norm(states[:, -1, :3], axis=1)
-    speed = np.linalg.norm(states[:, -1, 3:], axis=1)
-    success = (distance < PROBLEM.success_distance) & (speed < PROBLEM.success_speed)
+def rendezvous_metrics(flight: Flight, expert_thrust: np.ndarray) -> dict:
+    """The primary metric and its auxiliaries; effort is measured against the expert's thrust
+    (N, H, 3) from the same starts (ratios of the sums over the starts)."""
+    distance, speed = flight.terminal_distance, flight.terminal_speed
+    energy, delta_v = control_effort(flight.thrust, PROBLEM)
+    expert_energy, expert_delta_v = control_effort(expert_thrust, PROBLEM)
     return {
         METRIC: float(distance.mean()),
-        "success_rate": float(success.mean()),
+        "success_rate": float(flight.is_success.mean()),
         "median_terminal_distance": float(np.median(distance)),
         "max_terminal_distance": float(distance.max()),
         "mean_terminal_speed": float(speed.mean()),
+        "effort_ratio": float(energy.sum() / expert_energy.sum()),
+        "delta_v_ratio": float(delta_v.sum() / expert_delta_v.sum()),
+        "mean_delta_v": float(delta_v.mean()),
     }
+
+
+def evaluate(policy: Policy, held_out: Demonstrations) -> dict:
+    """The metrics of ``policy`` on an evaluation split (cwh_envs.datasets.evaluation_set)."""
+    return rendezvous_metrics(fly(policy, held_out.starts), held_out.trajectory_thrust())
 
 
 def append_record(path: Path, record: dict) -> None:
@@ -243,35 +253,49 @@ def main() -> None:
     parser.add_argument("--run-id", default=None, help="defaults to a fresh random id")
     parser.add_argument("--runs-log", type=Path, default=Path(__file__).with_name("runs.jsonl"))
     parser.add_argument("--out", type=Path, default=Path("out"), help="directory for policy.pt")
+    parser.add_argument(
+        "--eval-split",
+        choices=("search", "test"),
+        default="search",
+        help="the split the record is scored on; test also keeps the search split's metrics (search_split)",
+    )
     args = parser.parse_args()
     config = {name: globals()[name] for name in CONFIG_NAMES}
     check_config(config)
     run_id = args.run_id or uuid.uuid4().hex[:12]
     device = seed_everything(args.seed)
 
-    obs, actions = load_training_set(config)
-    eval_starts, _ = evaluation_starts(TASK, N_EVAL, problem=PROBLEM)
+    obs, actions, datasets = load_training_set(config)
+    search = evaluation_set(TASK, N_EVAL, problem=PROBLEM, split="search")
+    datasets["search_split"] = search.content_key
+    first = search.take(N_PROGRESS)
 
     def report(epoch: int, policy: Policy) -> None:
-        value = rendezvous_metrics(fly(policy, eval_starts[:N_PROGRESS]))[METRIC]
+        value = evaluate(policy, first)[METRIC]
         print("PROGRESS: " + json.dumps({"step": epoch, METRIC: value}, allow_nan=False), flush=True)
 
     started = time.perf_counter()
     policy, best_loss = train(config, obs, actions, device, args.seed, report)
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
-    metrics = rendezvous_metrics(fly(policy, eval_starts))
+    metrics = evaluate(policy, search)
+    if args.eval_split == "test":
+        test = evaluation_set(TASK, N_TEST, problem=PROBLEM, split="test")
+        datasets["test_split"] = test.content_key
+        metrics = {**evaluate(policy, test), "search_split": metrics}
     eval_seconds = time.perf_counter() - started
 
     record = {
         "run_id": run_id,
         **metrics,
+        "eval_split": args.eval_split,
         "best_train_loss": best_loss,
         "train_seconds": round(train_seconds, 3),
         "eval_seconds": round(eval_seconds, 3),
         "n_params": sum(p.numel() for p in policy.parameters()),
         "n_train_pairs": len(obs),
         "seed": args.seed,
+        "datasets": datasets,
         "config": config,
     }
     args.out.mkdir(parents=True, exist_ok=True)

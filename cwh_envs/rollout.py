@@ -1,0 +1,130 @@
+"""Closed-loop flights of a policy from many starts at once, through the envs' own batched core.
+
+The one place a policy is scored: :func:`fly` steps :class:`cwh_envs.core.RendezvousCore` /
+:class:`~cwh_envs.core.DockingCore`, the code behind ``gym.make`` and the vector envs, with the
+same action check and the same CBF filter as :class:`cwh_envs.CBFSafetyFilter`. The step, the
+keep-out violation, the clearance and success are therefore computed in one place, and a start
+flown here ends exactly (to the bit) where the same start flown through ``gym.make`` ends, given
+the same actions (tests/test_rollout.py).
+
+A policy maps the observations the env would show, float32 (N, 7 | 10), to actions in the env's
+units: thrust as a fraction of ``u_max`` per axis, clipped to [-1, 1] as the env clips them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from cwh_envs.core import (
+    DockingCore,
+    DockingReward,
+    RendezvousCore,
+    RendezvousReward,
+    check_actions,
+    check_goals,
+    check_margin,
+    check_states,
+    filter_actions,
+)
+from cwh_envs.problems import DockingProblem, RendezvousProblem
+
+Policy = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Flight:
+    """N episodes flown to the horizon H. Per start: the env's end-of-episode info.
+
+    ``states`` (N, H+1, 6) [m, m/s]; ``thrust`` (N, H, 3) [N], what was applied (after the filter);
+    ``terminal_distance``, ``terminal_speed`` (N,); ``is_success`` (N,) bool; docking only (else
+    None): ``violation_rate`` (N,) share of steps 1..H ending inside the keep-out, ``min_clearance``
+    (N,) [m], and, with the filter, ``cbf_active`` / ``cbf_infeasible`` (N, H) bool.
+    """
+
+    states: np.ndarray
+    thrust: np.ndarray
+    goals: np.ndarray
+    terminal_distance: np.ndarray
+    terminal_speed: np.ndarray
+    is_success: np.ndarray
+    violation_rate: np.ndarray | None = None
+    min_clearance: np.ndarray | None = None
+    cbf_active: np.ndarray | None = None
+    cbf_infeasible: np.ndarray | None = None
+
+
+def fly(
+    problem: RendezvousProblem | DockingProblem,
+    policy: Policy,
+    starts,
+    goals=None,
+    *,
+    cbf_margin: float | None = None,
+) -> Flight:
+    """Fly ``policy`` from every start (N, 6) at once (docking: to ``goals`` (N, 3)) for H steps.
+
+    ``cbf_margin`` (docking, metres) passes every action through the predictive CBF filter first,
+    as ``CBFSafetyFilter(env, margin=cbf_margin)`` does.
+    """
+    docking = isinstance(problem, DockingProblem)
+    if not docking and not isinstance(problem, RendezvousProblem):
+        raise ValueError(
+            f"problem must be a RendezvousProblem or DockingProblem, got {type(problem).__name__}"
+        )
+    starts = np.asarray(starts, dtype=np.float64)
+    n = len(starts) if starts.ndim == 2 else 0
+    if n < 1:
+        raise ValueError(f"starts must have shape (N, 6) with N >= 1, got {starts.shape}")
+    starts = check_states(starts, n)
+    if docking:
+        if goals is None:
+            raise ValueError("docking needs goals (N, 3)")
+        goals = check_goals(goals, problem, n)
+        core = DockingCore(problem, DockingReward(), n)
+    else:
+        if goals is not None or cbf_margin is not None:
+            raise ValueError("rendezvous takes no goals and no CBF filter (it has no keep-out)")
+        core = RendezvousCore(problem, RendezvousReward(), n)
+    margin = None if cbf_margin is None else check_margin(cbf_margin)
+    horizon = problem.horizon
+    core.start(slice(None), starts, goals)
+    states = np.empty((n, horizon + 1, 6))
+    thrust = np.empty((n, horizon, 3))
+    active = np.zeros((n, horizon), dtype=bool) if margin is not None else None
+    infeasible = np.zeros((n, horizon), dtype=bool) if margin is not None else None
+    states[:, 0] = core.states
+    final = None
+    for k in range(horizon):
+        actions = check_actions(policy(core.observe()), (n, 3))
+        if margin is not None:
+            actions, result = filter_actions(actions, core.states, problem, margin)
+            active[:, k], infeasible[:, k] = result.active, result.infeasible
+        thrust[:, k] = actions * problem.u_max  # exactly what the core applies
+        _, _, _, final = core.step(actions)
+        states[:, k + 1] = core.states
+    return Flight(
+        states=states,
+        thrust=thrust,
+        goals=core.goals.copy(),
+        terminal_distance=final["terminal_distance"],
+        terminal_speed=final["terminal_speed"],
+        is_success=final["is_success"],
+        violation_rate=final.get("violation_rate"),
+        min_clearance=final.get("min_clearance"),
+        cbf_active=active,
+        cbf_infeasible=infeasible,
+    )
+
+
+def control_effort(thrust, problem) -> tuple[np.ndarray, np.ndarray]:
+    """(energy, delta-v) of thrust sequences (N, H, 3) [N]: sum of |u|^2 dt [N^2 s], the quantity the
+    minimum-energy experts minimise, and sum of |u| dt / m [m/s], the fuel a thruster spends."""
+    thrust = np.asarray(thrust, dtype=np.float64)
+    if thrust.ndim != 3 or thrust.shape[-1] != 3:
+        raise ValueError(f"thrust must have shape (N, H, 3), got {thrust.shape}")
+    energy = np.einsum("nki,nki->n", thrust, thrust) * problem.dt
+    delta_v = np.linalg.norm(thrust, axis=2).sum(axis=1) * problem.dt / problem.mass
+    return energy, delta_v
