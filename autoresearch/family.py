@@ -4,6 +4,10 @@ autoresearch writes under a family directory only two fields of its family.json:
 audit's noise step) and best (its verify and prune steps); campaigns and their runs live outside
 it (:meth:`Family.check_outside`). Every error names the file and field
 that is missing or invalid.
+
+A family that declares ``"test_split": true`` scores a run on a sealed test split when its
+train.py is given ``--eval-split test``. Only the audit asks for it; :func:`search_view` is the
+registry as every proposer sees it, without a number measured on that split.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from autoresearch.space import SearchSpace, SpaceError, ValidationError
 
 REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")
 DIRECTIONS = {"maximize": +1, "minimize": -1}
+SEARCH, TEST = "search", "test"  # the evaluation splits: selected on, and sealed
 # A family name becomes part of paths (runs/<name>-...): a plain file name, nothing to escape.
 PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
@@ -63,6 +68,11 @@ class Family:
     @property
     def constraints_field(self) -> str | None:
         return self.registry.get("constraints_field")
+
+    @property
+    def has_test_split(self) -> bool:
+        """Whether train.py scores on a sealed test split with ``--eval-split test``."""
+        return self.registry.get("test_split") is True
 
     @property
     def axes(self) -> tuple[str, ...]:
@@ -158,6 +168,8 @@ def _check_registry(registry: Any, where: Path) -> SearchSpace:
     field = registry.get("feasibility_field")
     if field is not None and (not isinstance(field, str) or not field):
         raise bad("feasibility_field", "must be a field name or null")
+    if not isinstance(registry.get("test_split", False), bool):
+        raise bad("test_split", "must be true or false")
     constraints = registry.get("constraints_field")
     if constraints is not None and (not isinstance(constraints, str) or not constraints):
         raise bad("constraints_field", "must be a field name or null")
@@ -218,6 +230,17 @@ def _check_train_py(source: str, registry: dict[str, Any], space: SearchSpace, w
             f"{where}: baseline.config in family.json differs from the editable defaults for "
             + ", ".join(f"{n} ({baseline[n]!r} vs {canonical[n]!r})" for n in differing)
         )
+
+
+def search_view(registry: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a family.json registry holding no number measured on the sealed test split: the
+    seed noise without its ``test`` part and no family ``best`` (certified on that split). What a
+    campaign copies and every proposer is shown, so the search never sees what certifies it."""
+    view = json.loads(json.dumps(registry))
+    if isinstance(view.get("seed_noise"), dict):
+        view["seed_noise"].pop(TEST, None)
+    view["best"] = None
+    return view
 
 
 def _walk_up(start: Path):

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from autoresearch.family import Family
+from autoresearch.family import Family, search_view
 from autoresearch.journal import read_json, read_jsonl
 from autoresearch.loop.campaign import CampaignPaths, CampaignState
 from autoresearch.proposers.base import ProposerContext
@@ -29,9 +29,12 @@ TOP_K = 5
 
 
 def shown_registry(registry: dict[str, Any], blind: bool) -> dict[str, Any]:
+    """What a proposer is shown of a registry: never a sealed-split number; in blind mode only the
+    invariant facts."""
+    view = search_view(registry)
     if not blind:
-        return copy.deepcopy(registry)
-    return {k: copy.deepcopy(registry[k]) for k in BLIND_REGISTRY_KEYS if k in registry}
+        return view
+    return {k: view[k] for k in BLIND_REGISTRY_KEYS if k in view}
 
 
 def summarize_random_arm(campaign_dir: Path, family: Family) -> str:

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.executors import Executor
-from autoresearch.family import Family
+from autoresearch.family import SEARCH, Family, search_view
 from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
 from autoresearch.loop.campaign import (
     BASELINE_PROPOSER,
@@ -50,6 +50,7 @@ from autoresearch.loop.live import View
 from autoresearch.loop.runner import (
     RunResult,
     check_record,
+    check_split,
     load_result,
     run_experiment,
     run_prepare_check,
@@ -127,7 +128,7 @@ class Orchestrator:
                 raise ValueError(f"{paths.family_json} belongs to family {self.registry.get('name')!r}")
         else:
             # The campaign's own copy: its best is this campaign's running best, not the family's.
-            self.registry = {**self.family.registry, "best": None}
+            self.registry = search_view(self.family.registry)
             write_json_atomic(paths.family_json, self.registry)
         self.journal = Journal(paths.proposals)
         repair_torn_tail(paths.runs_log)
@@ -191,6 +192,7 @@ class Orchestrator:
                 if not self._matches(line, intent):
                     continue  # not this run's line (e.g. forged or from another campaign): never adopted
                 value, reason = check_record(line, self.family.metric, intent["run_id"])
+                reason = reason or check_split(line, self.family.metric, SEARCH)
                 if reason is not None:
                     return RunResult("failed", intent["run_id"], None, reason, None, None)
                 return RunResult("ok", intent["run_id"], line, None, None, None, value)

@@ -7,6 +7,10 @@ The subprocess runs without a shell in its own session (process group); a wall-c
 an interrupt of the caller, or leftover children after exit all end in ``os.killpg`` of that
 group. A run succeeds only if it exits 0 and prints exactly one valid ``FINAL_METRIC:`` line.
 
+``eval_split="test"`` (the audit, for a family with a sealed test split) adds ``--eval-split
+test``: the record is then scored on the test split and must carry the search split's metrics of
+the same run under ``search_split``. A search run whose record says it saw the test split fails.
+
 A train.py may also print ``PROGRESS: {"step": <int>, "<metric>": <number>}`` lines (family
 contract, optional). They are read from the run's stdout file as they come, by the thread that
 supervises the run, kept as the run's learning curve, and handed to ``on_report``; when it answers
@@ -31,7 +35,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
-from autoresearch.family import Family
+from autoresearch.family import SEARCH, TEST, Family
 from autoresearch.journal import read_json, repair_torn_tail, write_json_atomic
 from autoresearch.loop import editable
 
@@ -111,6 +115,20 @@ def parse_final_metric(
         return None, None, f"FINAL_METRIC is not valid JSON ({err})"
     value, reason = check_record(record, metric, run_id)
     return (record if reason is None else None), value, reason
+
+
+def check_split(record: dict[str, Any], metric: str, eval_split: str) -> str | None:
+    """Why a valid record does not hold what an ``eval_split`` run must, or None."""
+    said = record.get("eval_split", SEARCH)
+    if said != eval_split:
+        return f"FINAL_METRIC says it was scored on the {said!r} split, but the run asked for {eval_split!r}"
+    if eval_split == TEST:
+        search = record.get("search_split")
+        if not isinstance(search, dict):
+            return "FINAL_METRIC of an --eval-split test run has no 'search_split' object"
+        if check_record({**search, "run_id": record["run_id"]}, metric, record["run_id"])[1] is not None:
+            return f"FINAL_METRIC search_split has no finite primary metric {metric!r}"
+    return None
 
 
 def parse_progress(line: str, metric: str) -> dict[str, Any] | None:
@@ -286,12 +304,16 @@ def run_experiment(
     on_progress: Callable[[float], None] | None = None,
     on_report: Callable[[int, float], bool] | None = None,
     cancel: threading.Event | None = None,
+    eval_split: str = SEARCH,
 ) -> RunResult:
     """Train ``config`` at ``seed`` in ``run_dir``; the result is also saved as run_dir/result.json.
 
     ``on_report(step, value)`` hears each PROGRESS point; True stops the run early. Setting
     ``cancel`` (another thread) kills the run and raises KeyboardInterrupt, leaving no result.
+    ``eval_split="test"`` scores the run on the family's sealed test split (the audit only).
     """
+    if eval_split not in (SEARCH, TEST) or (eval_split == TEST and not family.has_test_split):
+        raise ValueError(f"eval_split {eval_split!r}: family {family.name!r} has no such split")
     run_dir.mkdir(parents=True, exist_ok=True)
     write_train_copy(family, config, run_dir)
     repair_torn_tail(runs_log)  # a run killed mid-append must not glue its fragment to this record
@@ -306,6 +328,7 @@ def run_experiment(
         str(Path(runs_log).resolve()),
         "--out",
         str((run_dir / "out").resolve()),
+        *(["--eval-split", TEST] if eval_split == TEST else []),
     ]
     started = time.monotonic()
     reader = ProgressReader(run_dir / "stdout.txt", family.metric, on_report)
@@ -330,14 +353,21 @@ def run_experiment(
     else:
         reader.on_report = None  # the run is over: the last lines are kept, not judged
         reader.poll()
-        result = _result(family, run_id, run_dir, returncode, wall, timed_out, timeout)
+        result = _result(family, run_id, run_dir, returncode, wall, timed_out, timeout, eval_split)
     result = replace(result, progress=reader.points or None)
     write_json_atomic(run_dir / "result.json", result.to_json())
     return result
 
 
 def _result(
-    family: Family, run_id: str, run_dir: Path, returncode: int, wall: float, timed_out: bool, timeout: float
+    family: Family,
+    run_id: str,
+    run_dir: Path,
+    returncode: int,
+    wall: float,
+    timed_out: bool,
+    timeout: float,
+    eval_split: str,
 ) -> RunResult:
     if timed_out:
         reason = f"exceeded the {timeout:g} s wall-clock limit; its process group was killed"
@@ -348,6 +378,8 @@ def _result(
         return RunResult("failed", run_id, None, reason, wall, returncode)
     stdout = (run_dir / "stdout.txt").read_text(encoding="utf-8", errors="replace")
     record, value, reason = parse_final_metric(stdout, family.metric, run_id)
+    if reason is None:
+        reason = check_split(record, family.metric, eval_split)
     if reason is not None:
         return RunResult("failed", run_id, None, reason, wall, returncode)
     return RunResult("ok", run_id, record, None, wall, returncode, value)

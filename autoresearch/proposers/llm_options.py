@@ -158,7 +158,7 @@ def dry_run(meta: CampaignMeta, out: TextIO | None = None) -> int:
     import anthropic
     import openai
 
-    from autoresearch.family import resolve_family
+    from autoresearch.family import resolve_family, search_view
     from autoresearch.loop.campaign import CampaignState
     from autoresearch.loop.context import build_context, shown_registry
     from autoresearch.loop.stopping import Budgets, closest_trigger
@@ -187,7 +187,7 @@ def dry_run(meta: CampaignMeta, out: TextIO | None = None) -> int:
     budgets = Budgets(max_iters=settings["max_iters"], max_cost_usd=settings["max_cost_usd"])
     context = build_context(
         state,
-        registry={**family.registry, "best": None},
+        registry=search_view(family.registry),
         blind=blind,
         extra_warnings=(f"Budget: {closest_trigger(state, budgets, 0.0, blind)}",),
     )
