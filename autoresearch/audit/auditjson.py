@@ -9,11 +9,12 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from autoresearch.journal import JournalError, lock_for, read_json, write_json_atomic
 
 AUDIT_JSON = "audit.json"
+T = TypeVar("T")
 
 
 def audit_path(campaign: str | os.PathLike[str]) -> Path:
@@ -45,3 +46,12 @@ def set_family_field(family_dir: str | os.PathLike[str], field: str, value: Any)
     """Write one field of a family's family.json (seed_noise or best): a deliberate write, since the
     seed noise and the audited best are properties of the family, not of one campaign."""
     _update(Path(family_dir) / "family.json", lambda data: data.__setitem__(field, value))
+
+
+def update_family(family_dir: str | os.PathLike[str], decide: Callable[[dict[str, Any]], T]) -> T:
+    """Read-modify-write family.json under its lock and return what ``decide`` returns. ``decide``
+    sees the file as it is at the moment of writing, so two audits of one family (each deciding
+    whether its candidate replaces the best) never decide on a state the other has since changed."""
+    outcome: list[T] = []
+    _update(Path(family_dir) / "family.json", lambda data: outcome.append(decide(data)))
+    return outcome[0]

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from autoresearch.family import Family
+from autoresearch.family import SEARCH, TEST, Family
 from autoresearch.journal import read_jsonl
 from autoresearch.loop.campaign import CampaignError, CampaignMeta, CampaignPaths
 from autoresearch.space import canonical_key
@@ -30,14 +30,36 @@ def changed_params(family: Family, config: dict[str, Any]) -> list[str]:
     return [name for name in family.space.names if config[name] != baseline[name]]
 
 
-def seed_noise(family: Family) -> dict[str, Any]:
-    noise = family.seed_noise
-    if not noise or not all(isinstance(noise.get(k), (int, float)) for k in ("mean", "std", "k")):
+def gate_split(family: Family, requested: str | None = None) -> str:
+    """The split the audit gates on: ``requested``, else the sealed test split where the family has
+    one, else the search split (the paper's protocol)."""
+    if requested is None:
+        return TEST if family.has_test_split else SEARCH
+    if requested not in (SEARCH, TEST):
+        raise AuditError(f"--gate-split must be {SEARCH} or {TEST} (got {requested!r})")
+    if requested == TEST and not family.has_test_split:
         raise AuditError(
-            f"family {family.name!r} has no measured seed noise (mean, std, k) in {family.path / 'family.json'}; "
+            f"--gate-split test: family {family.name!r} declares no sealed test split (family.json test_split)"
+        )
+    return requested
+
+
+def has_noise(family: Family, split: str) -> bool:
+    """Whether the family's seed noise is measured on ``split``."""
+    noise = family.seed_noise or {}
+    part = noise.get(TEST) if split == TEST else noise
+    return isinstance(part, dict) and all(isinstance(part.get(k), (int, float)) for k in ("mean", "std", "k"))
+
+
+def seed_noise(family: Family, split: str = SEARCH) -> dict[str, Any]:
+    """The family's seed noise on ``split``: {"mean", "std", "k", ...}."""
+    if not has_noise(family, split):
+        what = "measured seed noise" if split == SEARCH else "seed noise measured on its sealed test split"
+        raise AuditError(
+            f"family {family.name!r} has no {what} (mean, std, k) in {family.path / 'family.json'}; "
             f"run `autoresearch noise --family {family.path}` first"
         )
-    return noise
+    return family.seed_noise if split == SEARCH else family.seed_noise[TEST]
 
 
 @dataclass(frozen=True)

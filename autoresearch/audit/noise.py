@@ -3,7 +3,9 @@
 The result is a property of the family, so it is written into the family's own family.json
 (``seed_noise``), and also into a campaign's audit.json when the measurement is part of its
 audit. Runs are logged as they finish; a re-run skips the seeds already measured, and a larger
-``k`` extends the same seed list (the plan is deterministic).
+``k`` extends the same seed list (the plan is deterministic). For a family with a sealed test
+split the same runs are scored on it too: ``seed_noise["test"]`` holds that split's mean, std and
+values (never shown to a proposer: autoresearch.family.search_view).
 """
 
 from __future__ import annotations
@@ -16,9 +18,9 @@ from autoresearch.audit import stats
 from autoresearch.audit.auditjson import read_audit, set_family_field, write_step
 from autoresearch.audit.inputs import AuditedCampaign, AuditError
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.audit.trials import Trial, at_split, run_trials
 from autoresearch.executors import Executor
-from autoresearch.family import Family
+from autoresearch.family import TEST, Family
 from autoresearch.loop.campaign import portable_path
 
 STEP = "noise"
@@ -62,6 +64,19 @@ def measure_noise(
             f"failures: {failed}; re-run to retry them"
         )
     floor = stats.noise_floor([r["metric"] for r in ok])
+    sealed = {}
+    if family.has_test_split:
+        test = [at_split(r, TEST) for r in ok]
+        test_floor = stats.noise_floor([value for value, _ in test])
+        sealed = {
+            TEST: {
+                "mean": test_floor.mean,
+                "std": test_floor.std,
+                "k": test_floor.k,
+                "values": [value for value, _ in test],
+                "n_feasible": sum(bool(feasible) for _, feasible in test),
+            }
+        }
     noise = {
         "mean": floor.mean,
         "std": floor.std,
@@ -73,6 +88,7 @@ def measure_noise(
         "measured_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "runs_dir": portable_path(root),
         "failed": failed,
+        **sealed,
     }
     set_family_field(family.path, "seed_noise", noise)
     if campaign is not None:

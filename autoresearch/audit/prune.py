@@ -17,6 +17,10 @@ Dropped edits are then reverted together and the pruned recipe is re-verified at
 is published only if it clears the same gate (against the baseline noise) and keeps the target.
 Otherwise the full configuration stands and the dropped group is reported as mattering jointly.
 
+Every probe and re-verification is scored on the split verification gated on (the sealed test
+split, where the family has one): the decisions, the re-verification gate and the published recipe
+use it, in units of the seed noise measured on that split.
+
 Two cases the metric-only equation does not cover, both resolved as keep: a reverted run that
 fails to train, and one that is infeasible (reverting breaks the safety constraint, e.g. the
 docking family's run-time filter). A paired probe whose full-configuration run failed is kept too
@@ -29,13 +33,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import read_audit, set_family_field, write_step
+from autoresearch.audit.auditjson import read_audit, update_family, write_step
 from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.audit.trials import Trial, at_split, run_trials
 from autoresearch.audit.verify import assess, is_this_campaign
 from autoresearch.executors import Executor
-from autoresearch.journal import read_json
+from autoresearch.family import SEARCH
 from autoresearch.loop.verdicts import reaches_target
 
 STEP = "prune"  # the paper rule's audit.json key; the log and run directories of every rule
@@ -76,15 +80,16 @@ class Rule:
 RULES = tuple(Rule(paired, at) for paired in (False, True) for at in NOISE_AT)
 
 
-def _probe(row: dict[str, Any]) -> dict[str, Any]:
-    return {k: row[k] for k in ("seed", "run_id", "status", "metric", "feasible")}
+def _probe(row: dict[str, Any], split: str) -> dict[str, Any]:
+    metric, feasible = at_split(row, split)
+    return {**{k: row[k] for k in ("seed", "run_id", "status")}, "metric": metric, "feasible": feasible}
 
 
-def _blocked(row: dict[str, Any], full_row: dict[str, Any] | None) -> str | None:
+def _blocked(row: dict[str, Any], full_row: dict[str, Any] | None, split: str) -> str | None:
     """Why a probe cannot be read as a metric change (then the edit is kept), or None."""
     if row["status"] != "ok":
         return f"the reverted configuration failed to run ({row['reason']})"
-    if not row["feasible"]:
+    if not at_split(row, split)[1]:
         return "the reverted configuration is infeasible: the edit carries the constraint"
     if full_row is not None and full_row["status"] != "ok":
         return f"the full configuration failed at the paired seed ({full_row['reason']}); re-run to retry"
@@ -98,12 +103,13 @@ def leave_one_out(
     sigma: float,
     probe_seeds: dict[str, list[int]],
     paired: bool = False,
+    split: str = SEARCH,
 ) -> dict[str, dict[str, Any]]:
     """Eqs. loo and loodecision for every edit of ``full``: {param: its decision record}.
 
     ``probe_seeds[name]`` are that edit's probe seeds in escalation order (the paper's rule gives
     every edit the same two); ``paired`` also runs the full configuration at each probe seed and
-    decides on the paired differences, in units of ``sigma``.
+    decides on the paired differences, in units of ``sigma``; every value is read on ``split``.
     """
     family, sign = campaign.family, campaign.family.direction
     config, mu_r, baseline = full["config"], full["mu_r"], family.baseline_config
@@ -140,10 +146,12 @@ def leave_one_out(
         for name, row in zip(stage, reverted, strict=True):
             d = decisions[name]
             full_row = at_seed.get(row["seed"])
-            d.setdefault("probes", []).append(_probe(row))
+            d.setdefault("probes", []).append(_probe(row, split))
             if full_row is not None:
-                d["probes"][-1].update(full_run_id=full_row["run_id"], full_metric=full_row["metric"])
-            d["note"] = _blocked(row, full_row)
+                d["probes"][-1].update(
+                    full_run_id=full_row["run_id"], full_metric=at_split(full_row, split)[0]
+                )
+            d["note"] = _blocked(row, full_row, split)
             if d["note"]:
                 d["decision"] = stats.KEEP
                 continue
@@ -201,7 +209,8 @@ def prune(
         _finish(campaign, rule, part)
         return part
     family, sign = campaign.family, campaign.family.direction
-    noise = verified["noise"]  # the noise the promotion was judged against
+    noise = verified["noise"]  # the noise the promotion was judged against, on its split
+    split = verified.get("split", SEARCH)
     full = next(c for c in verified["candidates"] if c["config_id"] == verified["promoted"])
     unit = _unit(rule, noise, full)
     n_seeds = n_seeds or len(verified["seeds"])
@@ -211,6 +220,7 @@ def prune(
     part: dict[str, Any] = {
         "rule": rule.name,
         "paired": rule.paired,
+        "split": split,
         "unit": unit,
         "promoted": full["config_id"],
         "mu_r": full["mu_r"],
@@ -219,7 +229,9 @@ def prune(
         "reverify_seeds": reverify_seeds,
     }
     write_step(campaign.root, rule.key, {**part, "status": "running"})
-    decisions = leave_one_out(campaign, executor, full, unit["sigma"], per_edit, paired=rule.paired)
+    decisions = leave_one_out(
+        campaign, executor, full, unit["sigma"], per_edit, paired=rule.paired, split=split
+    )
     dropped = [n for n, d in decisions.items() if d["decision"] in stats.DROPPED]
     part.update(
         decisions=list(decisions.values()),
@@ -239,7 +251,7 @@ def prune(
     cid, root = config_id(pruned_config), campaign.step_dir(STEP)
     trials = [Trial(f"prune-{cid}-s{seed}", pruned_config, seed) for seed in part["reverify_seeds"]]
     rows = run_trials(family, trials, executor, root / "prune.jsonl", root, campaign.timeout)
-    pruned = {"config_id": cid, "config": pruned_config, **assess(rows, None, noise, sign)}
+    pruned = {"config_id": cid, "config": pruned_config, **assess(rows, None, noise, sign, split)}
     publish, retained = False, None
     if "mu_r" in pruned:
         publish, retained = stats.prune_publish(
@@ -274,16 +286,23 @@ def _attach_distilled(
 ) -> None:
     """A published pruned recipe is recorded beside the family best, which stays the promoted full
     configuration (the paper's docking case: the distilled recipe clears the gate, but the full one
-    is the more accurate and reproducible)."""
-    best = read_json(campaign.family.path / "family.json").get("best") or {}
-    source = best.get("source") or {}
-    if not (is_this_campaign(source, campaign) and best["config"] == full["config"]):
-        return  # the family best came from elsewhere; the distilled recipe stays in audit.json
+    is the more accurate and reproducible). Decided on family.json as it is when written, under its
+    lock, so a best another audit promoted meanwhile is never given this campaign's recipe."""
     distilled = {
         "config": pruned["config"],
         "metric": pruned["mu_r"],
         "std": pruned["sigma_r"],
         "n": pruned["n"],
+        "split": pruned["split"],
+        "by_split": pruned["by_split"],
         "rule": rule.name,
+        "dropped": dropped,
     }
-    set_family_field(campaign.family.path, "best", {**best, "distilled": {**distilled, "dropped": dropped}})
+
+    def attach(registry: dict[str, Any]) -> None:
+        best = registry.get("best") or {}
+        if is_this_campaign(best.get("source"), campaign) and best["config"] == full["config"]:
+            registry["best"] = {**best, "distilled": distilled}
+        # else the family best came from elsewhere; the distilled recipe stays in audit.json
+
+    update_family(campaign.family.path, attach)

@@ -13,6 +13,12 @@ The arm searches the space the campaign's key-free proposer searched (its ``--sp
 parameter's ``random_range`` (autoresearch.space.SPACES); ``space`` overrides either.
 --matched-range narrows the training-budget axis to the range the campaign actually used (the
 paper's open limitation: the agent trained longer than the random sweep happened to sample).
+
+The arm is a search, so its runs are scored on the search split only and its directory, like a
+loop campaign's, holds no sealed-split value. Where the verdict is on the sealed test split, the
+two bests it compares (the campaign's single-seed best and the arm's) are each trained once more
+at the default seed and scored on both splits, so both sides are selected on search and judged on
+test alike; the re-run's search value is the recorded one, reproduced.
 """
 
 from __future__ import annotations
@@ -22,11 +28,11 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import write_step
-from autoresearch.audit.inputs import AuditedCampaign, AuditError
-from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.audit.auditjson import read_audit, write_step
+from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id, gate_split
+from autoresearch.audit.trials import Trial, at_split, run_trials
 from autoresearch.executors import Executor
-from autoresearch.family import Family
+from autoresearch.family import SEARCH, TEST, Family
 from autoresearch.journal import Journal
 from autoresearch.loop.campaign import (
     BASELINE_PROPOSER,
@@ -168,9 +174,12 @@ def run_random_arm(
     seed: int = 0,
     out: Path | None = None,
     space: str | None = None,
+    split: str | None = None,
 ) -> dict[str, Any]:
-    """Run (or resume) the random arm of ``campaign``; write audit.json[random] and return it."""
+    """Run (or resume) the random arm of ``campaign``; write audit.json[random] and return it. The
+    verdict is on ``split``: the split verification gated on, else the family's default."""
     family = campaign.family
+    split = gate_split(family, split or (read_audit(campaign.root).get("verify") or {}).get("split"))
     count = count or campaign_count(campaign)
     if count < 1:
         raise AuditError(f"the random arm needs a count >= 1 (got {count})")
@@ -208,6 +217,7 @@ def run_random_arm(
         campaign.timeout,
         paths.runs_log,
         label="random",
+        eval_split=SEARCH,
     )
     journal = Journal(paths.proposals)
     state = CampaignState.from_records(family, journal.read())
@@ -233,7 +243,58 @@ def run_random_arm(
         )
         journal.append(stop)
         state.apply(stop)
-    return summarize(campaign, paths.root, state, matched_range, ranges, seed, space)
+    part = summarize(campaign, paths.root, state, matched_range, ranges, seed, space)
+    if split == TEST:  # the paper's verdict stays beside the one on the sealed split
+        part["search_verdict"] = {"verdict": part["verdict"], "units": part["units"]}
+        part.update(judge_on_test(campaign, executor, state, matched_range))
+    write_step(campaign.root, step_name(matched_range), part)
+    return part
+
+
+def judge_on_test(
+    campaign: AuditedCampaign, executor: Executor, state: CampaignState, matched_range: bool
+) -> dict[str, Any]:
+    """Eq. verdict on the sealed test split: each side's search-selected best, trained again at the
+    default seed and scored on both splits (one training each)."""
+    family, sign = campaign.family, campaign.family.direction
+    bests = {"agent": campaign.single_seed_best(), "random": _best_of_arm(state)}
+    sides = {side: best for side, best in bests.items() if best is not None}
+    trials = [
+        Trial(f"judge-{side}-{config_id(best['config'])}", best["config"], family.default_seed)
+        for side, best in sides.items()
+    ]
+    root = campaign.step_dir(step_name(matched_range))
+    rows = run_trials(family, trials, executor, root / "judge.jsonl", root, campaign.timeout, label="judge")
+    judged: dict[str, Any] = {}
+    for (side, best), row in zip(sides.items(), rows, strict=True):
+        metric, feasible = at_split(row, TEST)
+        judged[side] = {
+            "config_id": config_id(best["config"]),
+            "run_id": row["run_id"],
+            "status": row["status"],
+            "test_metric": metric,
+            "test_feasible": feasible,
+            "search_metric": row["metric"],
+            "recorded_search_metric": best["metric"],
+            "reproduced": row["status"] == "ok" and row["metric"] == best["metric"],
+        }
+
+    def value(side: str) -> float | None:
+        side_part = judged.get(side) or {}
+        return side_part.get("test_metric") if side_part.get("test_feasible") else None
+
+    out: dict[str, Any] = {"split": TEST, "judged": judged, "verdict": None, "units": None}
+    sigma = (family.seed_noise or {}).get(TEST, {}).get("std")
+    if sigma:
+        out["verdict"], out["units"] = stats.random_verdict(value("agent"), value("random"), sigma, sign)
+    else:
+        out["verdict_note"] = "no seed noise measured on the test split: run `autoresearch noise`"
+    return out
+
+
+def _best_of_arm(state: CampaignState) -> dict[str, Any] | None:
+    ran = [r for r in state.records if r["status"] == "ran"]
+    return next((r for r in ran if r["run_id"] == state.best["run_id"]), None) if state.best else None
 
 
 def summarize(
@@ -245,14 +306,16 @@ def summarize(
     seed: int,
     space: str = DEFAULT_SPACE,
 ) -> dict[str, Any]:
-    """Eq. verdict in noise units, the strict-feasible fraction, and the arm's bests."""
+    """Eq. verdict in noise units on the search split, the strict-feasible fraction, and the arm's
+    bests; written to audit.json by the caller."""
     family, sign = campaign.family, campaign.family.direction
     ran = [r for r in state.records if r["status"] == "ran"]
     best_any = max(ran, key=lambda r: sign * r["metric"]) if ran else None
-    best = next((r for r in ran if r["run_id"] == state.best["run_id"]), None) if state.best else None
+    best = _best_of_arm(state)
     agent = campaign.single_seed_best()
     part: dict[str, Any] = {
         "status": "done",
+        "split": SEARCH,
         "dir": portable_path(arm_dir),
         "count": sum(r["status"] in RUN_STATUSES for r in state.records),
         "seed": seed,
@@ -274,5 +337,4 @@ def summarize(
         )
     else:
         part["verdict_note"] = "no measured seed noise: run `autoresearch noise` for the verdict"
-    write_step(campaign.root, step_name(matched_range), part)
     return part

@@ -202,42 +202,95 @@ def _best_of(arm_part: dict[str, Any]) -> str:
     return f"{_fmt(any_best['metric'])} (none feasible)" if any_best else "no successful run"
 
 
+def _sealed(audit: dict[str, Any]) -> bool:
+    """Whether the audit scored its runs on a sealed test split (its table then has both columns)."""
+    return bool((audit.get("verify") or {}).get("sealed_split"))
+
+
+def _on(entry: dict[str, Any] | None, split: str) -> str:
+    """An entry's reseeded mean ± sd on ``split`` (from its by_split), or —."""
+    part = ((entry or {}).get("by_split") or {}).get(split)
+    if not part or part.get("mu_r") is None:
+        return "—"
+    return f"{_fmt(part['mu_r'])} ± {_fmt(part['sigma_r'], 2)}"
+
+
 def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: list[PlottedArm]) -> list[str]:
-    """The paper's Tables 2 and 3: one row per arm, the reseeded headline last."""
+    """The paper's Tables 2 and 3: one row per arm, the reseeded headline last. With a sealed test
+    split, a column per split: the search split (selected on) and the test split (gated on)."""
     family = campaign.family
-    rows = ["| Arm | " + family.metric + " | Strict-feasible | vs. seed noise |", "|---|---|---|---|"]
+    sealed = _sealed(audit)
+    split = (audit.get("verify") or {}).get("split", "search")
+    columns = f"{family.metric}, search split | {family.metric}, test split" if sealed else family.metric
+    rows = [
+        f"| Arm | {columns} | Strict-feasible | vs. seed noise |",
+        "|---|---|" + "---|" * (3 if sealed else 2),
+    ]
+
+    def row(name: str, search: str, test: str, feasible: str, verdict: str) -> None:
+        rows.append(
+            f"| {name} | {search} | {test} | {feasible} | {verdict} |"
+            if sealed
+            else f"| {name} | {search} | {feasible} | {verdict} |"
+        )
+
     noise = audit.get("noise") or family.seed_noise
     if noise:
         feas = f"{noise['n_feasible']} of {noise['k']}" if "n_feasible" in noise else "n/a"
-        rows.append(
-            f"| Seed noise (n={noise['k']}) | {_fmt(noise['mean'])} ± {_fmt(noise['std'], 2)} | {feas} | reference |"
+        test = noise.get("test")
+        row(
+            f"Seed noise (n={noise['k']})",
+            f"{_fmt(noise['mean'])} ± {_fmt(noise['std'], 2)}",
+            f"{_fmt(test['mean'])} ± {_fmt(test['std'], 2)}" if test else "—",
+            feas,
+            "reference",
         )
     for step, name in (("random", "Random search"), ("random_matched", "Matched-range random")):
         part = audit.get(step)
         if part:
             units = f", {part['units']:+.1f}σ" if part.get("units") is not None else ""
-            rows.append(
-                f"| {name} (best of {part['count']}) | {_best_of(part)} | {part['n_feasible']} of {part['n_ran']} "
-                f"| not gated ({part['verdict'] or 'no verdict'}{units}) |"
+            on = " on test" if part.get("split") == "test" else ""
+            judged = (part.get("judged") or {}).get("random") or {}
+            row(
+                f"{name} (best of {part['count']})",
+                _best_of(part),
+                _fmt(judged.get("test_metric")),
+                f"{part['n_feasible']} of {part['n_ran']}",
+                f"not gated ({part['verdict'] or 'no verdict'}{on}{units})",
             )
     sign = family.direction
     for arm in other_arms:
         ran = arm.ran
         feasible = [r for r in ran if r["feasible"]]
         best = max(feasible, key=lambda r: sign * r["metric"]) if feasible else None
-        rows.append(
-            f"| {arm.label} (best of {len(ran)}) | {_fmt(best and best['metric'])} | {len(feasible)} of {len(ran)} | not gated |"
+        row(
+            f"{arm.label} (best of {len(ran)})",
+            _fmt(best and best["metric"]),
+            "—",
+            f"{len(feasible)} of {len(ran)}",
+            "not gated",
         )
     single = campaign.single_seed_best()
     if single:
-        rows.append(f"| Agent, single-seed best | {_fmt(single['metric'])} | yes | not gated |")
+        judged = ((audit.get("random") or {}).get("judged") or {}).get("agent") or {}
+        row(
+            "Agent, single-seed best",
+            _fmt(single["metric"]),
+            _fmt(judged.get("test_metric")),
+            "yes",
+            "not gated",
+        )
     verify = audit.get("verify") or {}
     shown = _promoted(verify) or next((c for c in verify.get("candidates", []) if "mu_r" in c), None)
     if shown:
         verdict = "PASS" if shown["passed"] else "FAIL"
-        rows.append(
-            f"| Agent, reseeded (n={shown['n']}) | **{_fmt(shown['mu_r'])} ± {_fmt(shown['sigma_r'], 2)}** "
-            f"| {shown['n_feasible']} of {shown['n']} | **{shown['margin']:.1f}σ, {verdict}** |"
+        gated = f"**{_fmt(shown['mu_r'])} ± {_fmt(shown['sigma_r'], 2)}**"
+        row(
+            f"Agent, reseeded (n={shown['n']})",
+            gated if split == "search" else _on(shown, "search"),
+            gated if split == "test" else _on(shown, "test"),
+            f"{shown['n_feasible']} of {shown['n']}",
+            f"**{shown['margin']:.1f}σ{f' on {split}' if sealed else ''}, {verdict}**",
         )
     for rule in RULES:  # the paper's rule first: the row of the paper's tables
         part = audit.get(rule.key) or {}
@@ -245,11 +298,37 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
         if pruned and "mu_r" in pruned:
             verdict = "published" if part["published"] else "not published"
             which = "" if rule.key == "prune" else f" ({rule.name} rule)"
-            rows.append(
-                f"| Pruned recipe{which}, reseeded (n={pruned['n']}) | {_fmt(pruned['mu_r'])} ± {_fmt(pruned['sigma_r'], 2)} "
-                f"| {pruned['n_feasible']} of {pruned['n']} | {pruned['margin']:.1f}σ, {verdict} |"
+            gated = f"{_fmt(pruned['mu_r'])} ± {_fmt(pruned['sigma_r'], 2)}"
+            row(
+                f"Pruned recipe{which}, reseeded (n={pruned['n']})",
+                gated if split == "search" else _on(pruned, "search"),
+                gated if split == "test" else _on(pruned, "test"),
+                f"{pruned['n_feasible']} of {pruned['n']}",
+                f"{pruned['margin']:.1f}σ, {verdict}",
             )
     return rows
+
+
+def split_note(audit: dict[str, Any]) -> str:
+    """Which split decided, in a sentence."""
+    verify = audit.get("verify") or {}
+    split = verify.get("split", "search")
+    if not verify.get("sealed_split"):
+        return (
+            "No sealed split: this family declares no test split, so the gate, the pruning and the promoted "
+            "best use the search split the campaign selected on (the paper's protocol)."
+        )
+    if split == "test":
+        return (
+            "**The test split decided**: every reseed was also scored on the family's sealed test split, which "
+            "no proposer ever saw; the gate, the pruning decisions and the promoted best use it, against the "
+            "seed noise measured on it. The search split, which the campaign selected on, is shown beside it: "
+            "the difference is the selection gap."
+        )
+    return (
+        "**The search split decided** (`--gate-split search`, the paper's protocol), although the family has "
+        "a sealed test split: the test-split column shows what the gate would have seen there."
+    )
 
 
 def _promoted(verify: dict[str, Any]) -> dict[str, Any] | None:
@@ -268,24 +347,35 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
     family = campaign.family
     if not verify:
         return ["Not run (`autoresearch verify --campaign DIR`)."]
+    split = verify.get("split", "search")
+    sealed = verify.get("sealed_split", False)
     lines = [f"Fresh seeds {verify.get('seeds')}; {verify['reason']}.", ""]
+    reseeded = "Reseeded, search split | Reseeded, test split" if sealed else "Reseeded mean ± sd"
     lines += [
-        "| Config | Edits | Single-seed | Reseeded mean ± sd | m | Feasible | Excluded | Result |",
-        "|---|---|---|---|---|---|---|---|",
+        f"| Config | Edits | Single-seed (search) | {reseeded} | m ({split}) | Feasible | Excluded | Result |",
+        "|---|---|---|---|---|---|---|---|" + ("---|" if sealed else ""),
     ]
     for c in verify["candidates"]:
+        blank = "| — | — |" if sealed else "| — |"
         if "mu_r" not in c:
             lines.append(
                 f"| {c['config_id']} | {_changes(c['config'], family)} | {_fmt(c['source']['metric'])} "
-                f"| — | — | — | — | {c.get('reason', 'not run')} |"
+                f"{blank} — | — | — | {c.get('reason', 'not run')} |"
             )
             continue
         excluded = f"{c['n_failed']} failed, {c['n_parity_excluded']} parity"
         mark = " (promoted)" if c["config_id"] == verify["promoted"] else ""
+        gated = _mean_sd(c["mu_r"], c["sigma_r"], c["n"])
+        cells = (
+            (gated if split == "search" else _on(c, "search"))
+            + " | "
+            + (gated if split == "test" else _on(c, "test"))
+            if sealed
+            else gated
+        )
         lines.append(
             f"| {c['config_id']}{mark} | {_changes(c['config'], family)} | {_fmt(c['source']['metric'])} "
-            f"| {_mean_sd(c['mu_r'], c['sigma_r'], c['n'])} | {c['margin']:.2f} | {c['n_feasible']} of {c['n']} "
-            f"| {excluded} | {c['reason']} |"
+            f"| {cells} | {c['margin']:.2f} | {c['n_feasible']} of {c['n']} | {excluded} | {c['reason']} |"
         )
     promoted = _promoted(verify)
     single = verify.get("single_seed_best")
@@ -293,8 +383,19 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
     if promoted:
         lines.append(
             f"Promoted: **{promoted['config_id']}**, the passing candidate with the best pessimistic end of the "
-            "95% confidence interval of its reseeded mean (the most reproducible)."
+            f"95% confidence interval of its reseeded mean on the {split} split (the most reproducible)."
         )
+        by_split = promoted.get("by_split") or {}
+        if (
+            sealed
+            and by_split.get("search", {}).get("mu_r")
+            and by_split.get("test", {}).get("mu_r") is not None
+        ):
+            search, test = by_split["search"]["mu_r"], by_split["test"]["mu_r"]
+            lines.append(
+                f"Selection gap of the promoted recipe: {_fmt(test)} on the test split against {_fmt(search)} on "
+                f"the search split it was selected on ({100 * (test - search) / abs(search):+.0f} %)."
+            )
         if single and single["config_id"] != promoted["config_id"]:
             lines.append(
                 f"It is not the single-seed best ({single['config_id']}, {_fmt(single['metric'])} at run "
@@ -303,7 +404,7 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
         if "diff" in promoted:
             noise = verify["noise"]
             lines.append(
-                f"\nMean difference to the seed-noise baseline (oriented, positive = better): "
+                f"\nMean difference to the seed-noise baseline on the {split} split (oriented, positive = better): "
                 f"**{_fmt(promoted['diff'])}** (95% Welch CI [{_fmt(promoted['ci_low'])}, {_fmt(promoted['ci_high'])}]), "
                 f"m = {promoted['margin']:.1f} units of σ = {_fmt(noise['std'], 3)} measured over K = {noise['k']} seeds."
             )
@@ -338,8 +439,8 @@ def prune_section(campaign: AuditedCampaign, prune: dict[str, Any]) -> list[str]
     else:
         how = f"at the shared probe seeds {prune['probe_seeds']}; Δ is measured against μ_R"
     lines = [
-        f"Each edit of {prune['promoted']} reverted alone {how}, in units of {_unit_text(prune)} "
-        "(negative = reverting hurts):",
+        f"Each edit of {prune['promoted']} reverted alone {how}, on the {prune.get('split', 'search')} split, "
+        f"in units of {_unit_text(prune)} (negative = reverting hurts):",
         "",
         "| Parameter | Axis | Default → value | Δ1/σ | Δ2/σ | Decision | Note |",
         "|---|---|---|---|---|---|---|",
@@ -429,6 +530,8 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
         "",
         "The reseeded mean is the headline number; the single-seed best is shown for traceability. "
         "The gate (paper Eq. reseedgate): m = σ_dir(μ_R − μ_0)/σ ≥ 2 and feasible on every reseed.",
+        "",
+        split_note(audit),
         "",
         "## Reseeded verification",
         "",

@@ -9,6 +9,12 @@ Promotion rule: of the passing candidates, the most reproducible one is promoted
 whose 95 % confidence interval of the reseeded mean has the best pessimistic end (for a
 minimized metric, the lowest upper bound). It may differ from the single-seed best: a lucky,
 erratic configuration loses to a tight one, as in both of the paper's campaigns.
+
+The split: candidates are ranked on the search split (what the campaign selected on); for a
+family with a sealed test split every reseed is scored on both splits from one training, and the
+gate, the promotion and the family best use the test split, against the seed noise measured on
+that split (``--gate-split search`` keeps the paper's protocol). Each candidate also carries
+``by_split``: its reseeded mean on every split it was scored on, the selection gap side by side.
 """
 
 from __future__ import annotations
@@ -18,12 +24,12 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import set_family_field, write_step
-from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, seed_noise
+from autoresearch.audit.auditjson import update_family, write_step
+from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, gate_split, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.audit.trials import Trial, at_split, run_trials
 from autoresearch.executors import Executor
-from autoresearch.family import Family
+from autoresearch.family import SEARCH, TEST, Family
 
 STEP = "verify"
 
@@ -57,12 +63,25 @@ def rank_candidates(campaign: AuditedCampaign, top: int) -> list[dict[str, Any]]
     ]
 
 
+def split_summary(values: list[float], feasible: list[bool]) -> dict[str, Any]:
+    """Mean, sd and feasible count of one split's values over the valid reseeds (ungated)."""
+    n = len(values)
+    mean = sum(values) / n if n else None
+    sd = (sum((v - mean) ** 2 for v in values) / (n - 1)) ** 0.5 if n >= 2 else None
+    return {"mu_r": mean, "sigma_r": sd, "n": n, "n_feasible": sum(feasible)}
+
+
 def assess(
-    rows: list[dict[str, Any]], source_loss: float | None, noise: dict[str, Any], sign: int
+    rows: list[dict[str, Any]],
+    source_loss: float | None,
+    noise: dict[str, Any],
+    sign: int,
+    split: str = SEARCH,
 ) -> dict[str, Any]:
     """Parity guard, then Eq. reseedgate and the Welch CI of the mean difference over the valid
-    reseeds. A reseed that failed to run fails the gate (re-running the step retries it)."""
-    reseeds, values, feasible = [], [], []
+    reseeds, on ``split`` (``noise`` is the seed noise measured on it). A reseed that failed to run
+    fails the gate (re-running the step retries it)."""
+    reseeds, valid = [], []
     for row in rows:
         excluded = None
         if row["status"] != "ok":
@@ -70,19 +89,34 @@ def assess(
         elif not stats.parity_guard(row["best_train_loss"], source_loss):
             excluded = f"parity guard: best_train_loss {row['best_train_loss']:.4g} > 2 x {source_loss:.4g}"
         else:
-            values.append(row["metric"])
-            feasible.append(bool(row["feasible"]))
+            valid.append(row)
+        metric, feasible = at_split(row, split)
         reseeds.append(
-            {k: row[k] for k in ("seed", "run_id", "status", "metric", "feasible", "best_train_loss")}
+            {
+                **{k: row[k] for k in ("seed", "run_id", "status", "best_train_loss")},
+                "metric": metric,
+                "feasible": feasible,
+                "excluded": excluded,
+            }
         )
-        reseeds[-1]["excluded"] = excluded
+        if split != SEARCH:
+            reseeds[-1]["search_metric"] = row["metric"]
+    splits = [SEARCH, TEST] if any(row.get(TEST) for row in valid) else [SEARCH]
+    by_split = {}
+    for name in splits:
+        pairs = [at_split(row, name) for row in valid]
+        by_split[name] = split_summary([v for v, _ in pairs], [bool(f) for _, f in pairs])
+    values = [at_split(row, split)[0] for row in valid]
+    feasible = [bool(at_split(row, split)[1]) for row in valid]
     n_failed = sum(r["status"] != "ok" for r in rows)
     out: dict[str, Any] = {
+        "split": split,
         "reseeds": reseeds,
         "n": len(values),
         "n_failed": n_failed,
         "n_parity_excluded": len(rows) - n_failed - len(values),
         "n_feasible": sum(feasible),
+        "by_split": by_split,
     }
     if not values:
         return {**out, "passed": False, "reason": "no valid reseeds"}
@@ -134,10 +168,10 @@ def is_this_campaign(source: Any, campaign: AuditedCampaign) -> bool:
 
 
 def _replaces_family_best(
-    family: Family, candidate: dict[str, Any], campaign: AuditedCampaign
+    current: dict[str, Any] | None, family: Family, candidate: dict[str, Any], campaign: AuditedCampaign
 ) -> tuple[bool, str]:
-    """A promotion replaces the family's best unless another campaign's best is more reproducible."""
-    current = family.registry.get("best")
+    """A promotion replaces the family's best unless another campaign's best is more reproducible on
+    the same split, or is certified on the sealed split while this candidate is not."""
     if not current:
         return True, "the family had no best"
     source = current.get("source") or {}
@@ -145,26 +179,70 @@ def _replaces_family_best(
         return True, "replaces this campaign's earlier promotion"
     if current.get("std") is None or (current.get("n") or 0) < 2:
         return True, "the family's previous best was not reseeded"
+    current_split, split = current.get("split", SEARCH), candidate["split"]
+    if current_split != split:
+        if split == TEST:
+            return True, "the family's previous best was certified on the search split only"
+        return False, f"the family's best (from {source}) is certified on the sealed test split"
     sign = family.direction
     old = stats.reproducibility_bound(current["metric"], current["std"], current["n"], sign)
     if candidate["bound"] >= old:
-        return True, "more reproducible than the family's previous best"
-    return False, f"the family's best (from {source}) has the better bound ({sign * old:.4g})"
+        return True, f"more reproducible on the {split} split than the family's previous best"
+    return (
+        False,
+        f"the family's best (from {source}) has the better bound on the {split} split ({sign * old:.4g})",
+    )
+
+
+def promote(campaign: AuditedCampaign, candidate: dict[str, Any]) -> dict[str, Any]:
+    """Write ``candidate`` as the family best if it replaces the one family.json holds when written
+    (decided under the file's lock: a concurrent audit of another campaign cannot be overwritten
+    with a worse best). Returns {"updated", "why"}."""
+    family = campaign.family
+
+    def decide(registry: dict[str, Any]) -> dict[str, Any]:
+        write, why = _replaces_family_best(registry.get("best"), family, candidate, campaign)
+        if write:
+            registry["best"] = {
+                "config": candidate["config"],
+                "metric": candidate["mu_r"],
+                "std": candidate["sigma_r"],
+                "n": candidate["n"],
+                "split": candidate["split"],
+                "by_split": candidate["by_split"],
+                "source": {
+                    "campaign": campaign_ref(campaign),
+                    "run_id": candidate["source"]["run_id"],
+                    "step": STEP,
+                },
+            }
+        return {"updated": write, "why": why}
+
+    return update_family(family.path, decide)
 
 
 def verify(
-    campaign: AuditedCampaign, executor: Executor, *, top: int = 3, n_seeds: int = 10
+    campaign: AuditedCampaign,
+    executor: Executor,
+    *,
+    top: int = 3,
+    n_seeds: int = 10,
+    split: str | None = None,
 ) -> dict[str, Any]:
-    """Reseed the top candidates, gate them, promote the most reproducible passing one."""
+    """Reseed the top candidates, gate them on ``split`` (default: the sealed test split where the
+    family has one), promote the most reproducible passing one."""
     if top < 1:
         raise ValueError(f"--top must be >= 1 (got {top})")
     if n_seeds < 2:
         raise ValueError(f"--seeds {n_seeds}: reseeded verification needs >= 2 seeds")
     family, sign = campaign.family, campaign.family.direction
-    noise = seed_noise(family)
+    split = gate_split(family, split)
+    noise = seed_noise(family, split)
     candidates = rank_candidates(campaign, top)
     best_run = campaign.single_seed_best()
     part: dict[str, Any] = {
+        "split": split,
+        "sealed_split": family.has_test_split,
         "noise": {k: noise[k] for k in ("mean", "std", "k")},
         "top": top,
         "single_seed_best": None,
@@ -191,29 +269,15 @@ def verify(
     rows = run_trials(family, trials, executor, root / "verify.jsonl", root, campaign.timeout)
     for i, candidate in enumerate(candidates):
         own = rows[i * n_seeds : (i + 1) * n_seeds]
-        candidate.update(assess(own, candidate["source"]["best_train_loss"], noise, sign))
+        candidate.update(assess(own, candidate["source"]["best_train_loss"], noise, sign, split))
     passing = [c for c in candidates if c["passed"]]
     if passing:
         promoted = max(passing, key=lambda c: (c["bound"], sign * c["mu_r"]))
         part["promoted"] = promoted["config_id"]
-        write, why = _replaces_family_best(family, promoted, campaign)
-        part["family_best"] = {"updated": write, "why": why}
-        if write:
-            set_family_field(
-                family.path,
-                "best",
-                {
-                    "config": promoted["config"],
-                    "metric": promoted["mu_r"],
-                    "std": promoted["sigma_r"],
-                    "n": promoted["n"],
-                    "source": {
-                        "campaign": campaign_ref(campaign),
-                        "run_id": promoted["source"]["run_id"],
-                        "step": STEP,
-                    },
-                },
-            )
-    part.update(status="done", reason=f"{len(passing)} of {len(candidates)} candidate(s) passed the gate")
+        part["family_best"] = promote(campaign, promoted)
+    part.update(
+        status="done",
+        reason=f"{len(passing)} of {len(candidates)} candidate(s) passed the gate on the {split} split",
+    )
     write_step(campaign.root, STEP, part)
     return part

@@ -5,17 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from autoresearch.audit.inputs import open_campaign
+from autoresearch.audit.inputs import gate_split, has_noise, open_campaign
 from autoresearch.audit.noise import measure_noise, record_existing_noise
 from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
-from autoresearch.commands.common import positive_int, run_command
+from autoresearch.commands.common import describe_noise, positive_int, run_command
 from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import print_verify
 from autoresearch.executors import add_executor_arguments
+from autoresearch.family import SEARCH, TEST
 from autoresearch.loop.campaign_lock import CampaignLock
 
 
@@ -24,8 +25,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "audit",
         help="noise, verify, prune and the random arm for one campaign, then report.md",
         description="Run the credibility audit of a campaign in order: seed noise (only if the family has "
-        "none, or with --force), reseeded verification, leave-one-out pruning, the random-search arm; then "
-        "write report.md and its figures. Each step is resumable and writes its part of audit.json.",
+        "none on the splits it has, or with --force), reseeded verification, leave-one-out pruning, the "
+        "random-search arm; then write report.md and its figures. Each step is resumable and writes its part "
+        "of audit.json. For a family with a sealed test split, every reseed is scored on both splits and the "
+        "gate uses the test split.",
         epilog="Example: autoresearch audit --campaign runs/docking-tpe-20250101-120000 --workers 4",
     )
     p.add_argument("--campaign", required=True, help="campaign directory")
@@ -38,6 +41,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--count", type=positive_int, help="random-arm experiments (default: the campaign's)")
     p.add_argument("--matched-range", action="store_true", help="also run a matched-range random arm")
     p.add_argument("--arm", action="append", type=Path, default=[], help="another arm to plot (repeatable)")
+    p.add_argument(
+        "--gate-split",
+        choices=(SEARCH, TEST),
+        help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
+        "test split where the family has one, else search; search is the paper's protocol)",
+    )
     add_rule_arguments(p)
     add_executor_arguments(p)
     return p
@@ -52,21 +61,30 @@ def run(args: argparse.Namespace) -> int:
         # Each step re-opens the campaign: the previous one may have written the family's
         # seed_noise or best.
         campaign = open_campaign(args.campaign)
-        if campaign.family.seed_noise and not args.force:
+        family = campaign.family
+        split = gate_split(family, args.gate_split)
+        measured = has_noise(family, SEARCH) and (not family.has_test_split or has_noise(family, TEST))
+        if measured and not args.force:
             noise = record_existing_noise(campaign)
-            print(f"[noise] from family.json: {noise['mean']:.6g} +- {noise['std']:.3g} (K={noise['k']})")
+            print(f"[noise] from family.json: {describe_noise(noise)}")
         else:
-            noise = measure_noise(campaign.family, executor, k=args.noise_seeds, campaign=campaign)
-            print(f"[noise] measured: {noise['mean']:.6g} +- {noise['std']:.3g} (K={noise['k']})")
-        print("[verify]")
-        print_verify(verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds))
+            noise = measure_noise(family, executor, k=args.noise_seeds, campaign=campaign)
+            print(f"[noise] measured: {describe_noise(noise)}")
+        print(f"[verify, gated on the {split} split]")
+        print_verify(
+            verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds, split=split)
+        )
         print(f"[prune, {rule_of(args).name} rule]")
         print_prune(prune(open_campaign(args.campaign), executor, rule=rule_of(args)))
         for matched in (False, True) if args.matched_range else (False,):
             print("[random" + (", matched range]" if matched else "]"))
             print_random(
                 run_random_arm(
-                    open_campaign(args.campaign), executor, count=args.count, matched_range=matched
+                    open_campaign(args.campaign),
+                    executor,
+                    count=args.count,
+                    matched_range=matched,
+                    split=split,
                 )
             )
         print(f"[report] {write_report(Path(args.campaign), arms=args.arm)}")

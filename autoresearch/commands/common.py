@@ -24,6 +24,13 @@ def positive_int(text: str) -> int:
     return value
 
 
+def describe_noise(noise: dict) -> str:
+    """A family's seed noise in one line, the sealed split's beside the search split's."""
+    text = f"{noise['mean']:.6g} +- {noise['std']:.3g} (K={noise['k']})"
+    test = noise.get("test")
+    return text + (f"; on the test split {test['mean']:.6g} +- {test['std']:.3g}" if test else "")
+
+
 def run_command(name: str, args: argparse.Namespace, body: Callable[[Executor], None]) -> int:
     """Run ``body`` with the executor the flags choose; errors become one line and exit code 2, and
     SIGINT / SIGTERM stop the runs in flight (they are retried when the command is run again)."""

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import default_noise_dir, measure_noise
-from autoresearch.commands.common import positive_int, run_command
+from autoresearch.commands.common import describe_noise, positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
 from autoresearch.loop.campaign_lock import CampaignLock
@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
             timeout=args.timeout_per_run,
         )
         print(
-            f"seed noise of {family.name}: {family.metric} = {noise['mean']:.6g} +- {noise['std']:.3g} "
-            f"(K={noise['k']}, seeds {noise['seeds']}); written to {family.path / 'family.json'}"
+            f"seed noise of {family.name}: {family.metric} = {describe_noise(noise)}, seeds {noise['seeds']}; "
+            f"written to {family.path / 'family.json'}"
         )
 
     return run_command("noise", args, body)

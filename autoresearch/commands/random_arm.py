@@ -52,7 +52,14 @@ def print_random(part: dict) -> None:
         f"{best_text}; feasible {part['n_feasible']} of {part['n_ran']}"
     )
     units = f" ({part['units']:+.2f} sigma)" if part["units"] is not None else ""
-    print(f"  verdict: {part['verdict'] or part.get('verdict_note')}{units}")
+    on = f" on the {part['split']} split" if part.get("split") == "test" else ""
+    print(f"  verdict{on}: {part['verdict'] or part.get('verdict_note')}{units}")
+    for side, judged in (part.get("judged") or {}).items():
+        print(
+            f"  {side} best {judged['config_id']} re-run at the default seed: test split {judged['test_metric']}, "
+            f"search split {judged['search_metric']} (recorded {judged['recorded_search_metric']}, "
+            f"{'reproduced' if judged['reproduced'] else 'NOT reproduced'})"
+        )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,6 +8,7 @@ from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.verify import verify
 from autoresearch.commands.common import positive_int, run_command
 from autoresearch.executors import add_executor_arguments
+from autoresearch.family import SEARCH, TEST
 from autoresearch.loop.campaign_lock import CampaignLock
 
 
@@ -23,16 +24,26 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--campaign", required=True, help="campaign directory")
     p.add_argument("--top", type=positive_int, default=3, help="candidates to reseed (default 3)")
     p.add_argument("--seeds", type=positive_int, default=10, help="fresh seeds per candidate (default 10)")
+    p.add_argument(
+        "--gate-split",
+        choices=(SEARCH, TEST),
+        help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
+        "test split where the family has one, else search; search is the paper's protocol)",
+    )
     add_executor_arguments(p)
     return p
 
 
 def print_verify(part: dict) -> None:
+    split = part.get("split", SEARCH)
     for c in part["candidates"]:
         if "mu_r" in c:
             sd = "n/a" if c["sigma_r"] is None else f"{c['sigma_r']:.3g}"
+            other = (c.get("by_split") or {}).get(SEARCH if split == TEST else TEST)
+            gap = f" (search split {other['mu_r']:.6g})" if split == TEST and other else ""
             print(
-                f"  {c['config_id']}: {c['mu_r']:.6g} +- {sd} (n={c['n']}), m = {c['margin']:.2f}: {c['reason']}"
+                f"  {c['config_id']}: {split} split {c['mu_r']:.6g} +- {sd} (n={c['n']}){gap}, "
+                f"m = {c['margin']:.2f}: {c['reason']}"
             )
         else:
             print(f"  {c['config_id']}: {c['reason']}")
@@ -42,6 +53,8 @@ def print_verify(part: dict) -> None:
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
         with CampaignLock(args.campaign, "verify"):
-            print_verify(verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds))
+            campaign = open_campaign(args.campaign)
+            part = verify(campaign, executor, top=args.top, n_seeds=args.seeds, split=args.gate_split)
+            print_verify(part)
 
     return run_command("verify", args, body)

@@ -15,6 +15,10 @@ GAP            saves 1.5 sigma  keep, seen only at two seeds (the equation's gap
 JOINT_A/B      save 0.3 only together: each alone is inert, both reverted regress
 WIDE           erratic: the noise is ten times larger and of the opposite sign
 AUDIT_THROTTLE_SEED (environment): that seed reports a tripled best_train_loss (parity guard).
+
+--eval-split test (a copy whose family.json sets test_split): the sealed split's loss is the search
+loss plus TEST_OFFSET, so every designed effect holds on it unchanged, and a value of at least
+1000 anywhere a proposer looks is a test-split value that leaked.
 """
 
 # ===== Editable Configuration (the agent may change these values only) =====
@@ -51,6 +55,7 @@ CONFIG = {
 }
 S = 0.01
 SIGMA4 = S * math.sqrt(4 / 3)  # the sample sd of four alternating +-S values
+TEST_OFFSET = 1000.0
 
 
 def train(config: dict, seed: int) -> dict:
@@ -80,8 +85,19 @@ def main() -> int:
     parser.add_argument("--run-id", default="manual")
     parser.add_argument("--runs-log", default=str(here / "runs.jsonl"))
     parser.add_argument("--out", default="out")
+    parser.add_argument("--eval-split", choices=("search", "test"), default="search")
     args = parser.parse_args()
-    record = {"run_id": args.run_id, **train(CONFIG, args.seed), "seed": args.seed, "config": CONFIG}
+    scores = train(CONFIG, args.seed)
+    if args.eval_split == "test":
+        search = {"loss": scores["loss"], "feasible": scores["feasible"]}
+        scores = {**scores, "loss": scores["loss"] + TEST_OFFSET, "search_split": search}
+    record = {
+        "run_id": args.run_id,
+        **scores,
+        "eval_split": args.eval_split,
+        "seed": args.seed,
+        "config": CONFIG,
+    }
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "policy.json").write_text(json.dumps(CONFIG))
