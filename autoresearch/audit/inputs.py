@@ -7,6 +7,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from autoresearch import provenance
+from autoresearch.audit.auditjson import read_audit
 from autoresearch.family import SEARCH, TEST, Family
 from autoresearch.journal import read_jsonl
 from autoresearch.loop.campaign import CampaignError, CampaignMeta, CampaignPaths
@@ -68,6 +70,7 @@ class AuditedCampaign:
     meta: CampaignMeta  # campaign.json
     family: Family
     records: list[dict[str, Any]]  # proposals.jsonl
+    provenance: dict[str, Any] | None = None  # what this audit runs under (each step records it)
 
     @property
     def root(self) -> Path:
@@ -103,4 +106,20 @@ def open_campaign(campaign_dir: str | Path) -> AuditedCampaign:
         raise AuditError(str(err)) from None
     if not Path(meta.family).is_dir():
         raise AuditError(f"{paths.campaign_json}: its family directory {meta.family!r} does not exist")
-    return AuditedCampaign(paths, meta, Family.load(meta.family), read_jsonl(paths.proposals))
+    family = Family.load(meta.family)
+    return AuditedCampaign(paths, meta, family, read_jsonl(paths.proposals), provenance.collect(family.path))
+
+
+def provenance_report(campaign: AuditedCampaign, strict: bool) -> list[str]:
+    """Differences between the environment now and the one recorded for the campaign's runs and for
+    each audit step already done (autoresearch.provenance.report)."""
+    recorded = [("campaign.json, first session", campaign.meta.provenance)]
+    audit = read_audit(campaign.root)
+    recorded += [
+        (f"audit.json {step}", part["provenance"])
+        for step, part in audit.items()
+        if isinstance(part, dict) and part.get("provenance")
+    ]
+    return provenance.report(
+        recorded, campaign.provenance or provenance.collect(campaign.family.path), strict
+    )

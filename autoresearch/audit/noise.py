@@ -92,7 +92,11 @@ def measure_noise(
     }
     set_family_field(family.path, "seed_noise", noise)
     if campaign is not None:
-        write_step(campaign.root, STEP, {"status": "done", "source": "measured", **noise})
+        write_step(
+            campaign.root,
+            STEP,
+            {"status": "done", "source": "measured", **noise, "provenance": campaign.provenance},
+        )
     return noise
 
 
@@ -103,5 +107,6 @@ def record_existing_noise(campaign: AuditedCampaign) -> dict[str, Any]:
         raise AuditError(f"family {campaign.family.name!r} has no seed noise to record")
     recorded = read_audit(campaign.root).get(STEP) or {}
     if {k: recorded.get(k) for k in noise} != noise:  # keep "measured" if this audit measured it
-        write_step(campaign.root, STEP, {"status": "done", "source": "family.json", **noise})
+        part = {"status": "done", "source": "family.json", **noise, "provenance": campaign.provenance}
+        write_step(campaign.root, STEP, part)
     return noise

@@ -227,6 +227,7 @@ def prune(
         "noise": noise,
         "probe_seeds": sorted({s for seeds in per_edit.values() for s in seeds}),
         "reverify_seeds": reverify_seeds,
+        "provenance": campaign.provenance,
     }
     write_step(campaign.root, rule.key, {**part, "status": "running"})
     decisions = leave_one_out(

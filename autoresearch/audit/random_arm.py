@@ -330,6 +330,7 @@ def summarize(
         "agent_best": agent and agent["metric"],
         "verdict": None,
         "units": None,
+        "provenance": campaign.provenance,
     }
     if family.sigma:
         part["verdict"], part["units"] = stats.random_verdict(

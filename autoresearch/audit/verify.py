@@ -248,6 +248,7 @@ def verify(
         "single_seed_best": None,
         "candidates": candidates,
         "promoted": None,
+        "provenance": campaign.provenance,
     }
     if best_run is not None:
         part["single_seed_best"] = {"config_id": config_id(best_run["config"])} | {

@@ -11,7 +11,13 @@ from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
-from autoresearch.commands.common import describe_noise, positive_int, run_command
+from autoresearch.commands.common import (
+    add_provenance_argument,
+    describe_noise,
+    opened,
+    positive_int,
+    run_command,
+)
 from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import print_verify
@@ -48,6 +54,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "test split where the family has one, else search; search is the paper's protocol)",
     )
     add_rule_arguments(p)
+    add_provenance_argument(p)
     add_executor_arguments(p)
     return p
 
@@ -60,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     def steps(executor) -> None:
         # Each step re-opens the campaign: the previous one may have written the family's
         # seed_noise or best.
-        campaign = open_campaign(args.campaign)
+        campaign = opened(args.campaign, args)
         family = campaign.family
         split = gate_split(family, args.gate_split)
         measured = has_noise(family, SEARCH) and (not family.has_test_split or has_noise(family, TEST))

@@ -6,7 +6,7 @@ import argparse
 import sys
 from collections.abc import Callable
 
-from autoresearch.audit.inputs import AuditError
+from autoresearch.audit.inputs import AuditError, open_campaign, provenance_report
 from autoresearch.executors import Executor, make_executor
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
@@ -22,6 +22,23 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
     return value
+
+
+def add_provenance_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--strict-provenance",
+        action="store_true",
+        help="refuse to run if the Python, a library version, the git commit or a family file differs from "
+        "what campaign.json and the audit steps already done recorded (otherwise each difference is listed)",
+    )
+
+
+def opened(campaign_dir, args: argparse.Namespace):
+    """The campaign, once every provenance difference is listed on stderr (or refused, strict)."""
+    campaign = open_campaign(campaign_dir)
+    for line in provenance_report(campaign, args.strict_provenance):
+        print(f"[provenance] {line}", file=sys.stderr)
+    return campaign
 
 
 def describe_noise(noise: dict) -> str:

@@ -11,6 +11,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from autoresearch import provenance
 from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json
@@ -131,6 +132,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--resume", action="store_true", help="continue the campaign in --campaign")
     p.add_argument(
+        "--strict-provenance",
+        action="store_true",
+        help="with --resume: refuse to go on if the Python, a library version, the git commit or a family "
+        "file differs from the campaign's first session (otherwise each difference is listed)",
+    )
+    p.add_argument(
         "--early-stop",
         choices=EARLY_STOP,
         help="stop runs whose PROGRESS curve is worse than the finished runs' (Optuna's MedianPruner or "
@@ -200,6 +207,9 @@ def _plan(args: argparse.Namespace) -> tuple[Path, CampaignMeta]:
         if args.proposer and args.proposer != meta.proposer:
             raise UsageError(f"this campaign's proposer is {meta.proposer}; a campaign cannot change it")
         family = resolve_family(args.family or meta.family)
+        recorded = [("campaign.json, first session", meta.provenance)]
+        for line in provenance.report(recorded, provenance.collect(family.path), args.strict_provenance):
+            print(f"[provenance] {line}", file=sys.stderr)
         return root, meta.resumed(family, _settings(args, meta.settings))
     if not args.family:
         raise UsageError("--family is required (a name under families/ or a directory)")
@@ -335,7 +345,12 @@ def _run_repeats(args: argparse.Namespace) -> int:
         settings = {**_settings(args, saved.get("settings", {})), "workers": 1, "executor": "local"}
         args.workers, args.executor = args.workers or 1, args.executor or "local"
         group = repeats.plan_group(
-            root, family=family, proposer=proposer, settings=settings, repeats=args.repeats, session=session()
+            root,
+            family=family,
+            proposer=proposer,
+            settings=settings,
+            repeats=args.repeats,
+            session=session(family),
         )
         build_loop(group.tasks[0].meta)  # refuse bad settings before anything runs
         family.check_outside(root)

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.prune import NOISE_AT, Rule, prune
-from autoresearch.commands.common import positive_int, run_command
+from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.loop.campaign_lock import CampaignLock
 
@@ -27,6 +26,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--seeds", type=positive_int, help="re-verification seeds (default: as many as verify used)"
     )
     add_rule_arguments(p)
+    add_provenance_argument(p)
     add_executor_arguments(p)
     return p
 
@@ -69,6 +69,6 @@ def print_prune(part: dict) -> None:
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
         with CampaignLock(args.campaign, "prune"):
-            print_prune(prune(open_campaign(args.campaign), executor, n_seeds=args.seeds, rule=rule_of(args)))
+            print_prune(prune(opened(args.campaign, args), executor, n_seeds=args.seeds, rule=rule_of(args)))
 
     return run_command("prune", args, body)

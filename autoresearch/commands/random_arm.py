@@ -6,9 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.random_arm import default_arm_dir, run_random_arm
-from autoresearch.commands.common import positive_int, run_command
+from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
 from autoresearch.loop.campaign_lock import CampaignLock
@@ -40,6 +39,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the random proposer (default 0)")
     p.add_argument("--out", type=Path, help="arm directory (default <campaign>-random[-matched] beside it)")
+    add_provenance_argument(p)
     add_executor_arguments(p)
     return p
 
@@ -65,7 +65,7 @@ def print_random(part: dict) -> None:
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
         with CampaignLock(args.budget_from, "random"):
-            campaign = open_campaign(args.budget_from)
+            campaign = opened(args.budget_from, args)
             out = args.out or default_arm_dir(campaign, args.matched_range)
             campaign.family.check_outside(out)
             with CampaignLock(out, "random", create=True):

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.verify import verify
-from autoresearch.commands.common import positive_int, run_command
+from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import SEARCH, TEST
 from autoresearch.loop.campaign_lock import CampaignLock
@@ -30,6 +29,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
         "test split where the family has one, else search; search is the paper's protocol)",
     )
+    add_provenance_argument(p)
     add_executor_arguments(p)
     return p
 
@@ -53,7 +53,7 @@ def print_verify(part: dict) -> None:
 def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
         with CampaignLock(args.campaign, "verify"):
-            campaign = open_campaign(args.campaign)
+            campaign = opened(args.campaign, args)
             part = verify(campaign, executor, top=args.top, n_seeds=args.seeds, split=args.gate_split)
             print_verify(part)
 

@@ -18,6 +18,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from autoresearch import provenance
 from autoresearch.family import Family
 from autoresearch.journal import JournalError, read_json, write_json_atomic
 from autoresearch.loop.verdicts import is_better, reaches_target
@@ -80,11 +81,15 @@ def new_record(**fields: Any) -> dict[str, Any]:
     return {**dict.fromkeys(RECORD_KEYS), **fields}
 
 
-def session() -> dict[str, Any]:
-    """One entry of campaign.json's ``sessions``: when a command started on the campaign, and how (its
-    path arguments portable, e.g. the absolute ``--campaign`` each repeat of a group is resumed with)."""
+def session(family: Family | None = None) -> dict[str, Any]:
+    """One entry of campaign.json's ``sessions``: when a command started on the campaign, how (its
+    path arguments portable, e.g. the absolute ``--campaign`` each repeat of a group is resumed with),
+    and, given the family, what ran (autoresearch.provenance)."""
     argv = [portable_path(a) if Path(a).is_absolute() and Path(a).exists() else a for a in sys.argv[1:]]
-    return {"started": now(), "argv": argv}
+    entry = {"started": now(), "argv": argv}
+    if family is not None:
+        entry["provenance"] = provenance.collect(family.path)
+    return entry
 
 
 def portable_path(path: str | Path) -> str:
@@ -121,7 +126,7 @@ class CampaignMeta:
 
     @classmethod
     def new(cls, family: Family, proposer: str, settings: dict[str, Any]) -> CampaignMeta:
-        started = session()
+        started = session(family)
         return cls(
             portable_path(family.path), family.name, proposer, settings, started["started"], (started,)
         )
@@ -131,8 +136,17 @@ class CampaignMeta:
         if family.name != self.family_name:
             raise CampaignError(f"this campaign is of family {self.family_name!r}, not {family.name!r}")
         return replace(
-            self, family=portable_path(family.path), settings=settings, sessions=(*self.sessions, session())
+            self,
+            family=portable_path(family.path),
+            settings=settings,
+            sessions=(*self.sessions, session(family)),
         )
+
+    @property
+    def provenance(self) -> dict[str, Any] | None:
+        """What produced the campaign's first records: its first session's provenance (None when it
+        was made before provenance was kept)."""
+        return self.sessions[0].get("provenance") if self.sessions else None
 
     def to_json(self) -> dict[str, Any]:
         data = {**asdict(self), "sessions": list(self.sessions)}

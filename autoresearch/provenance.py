@@ -1,0 +1,148 @@
+"""What produced a record: the interpreter, the library versions, the code's commit, the family's files.
+
+campaign.json keeps one :func:`collect` per session and audit.json one per step, so a number can
+be traced to what made it. ``loop --resume``, ``autoresearch check`` and a re-run audit step list
+every :func:`differences` between the recorded environment and the current one;
+``--strict-provenance`` refuses to go on when there is any (:class:`ProvenanceError`).
+
+Versions are read from the installed distributions' metadata, never by importing them (this
+package does not import torch). The git state is that of the repository holding the family
+directory: its commit, and whether tracked files differ from it (recorded, not compared: the audit
+itself rewrites the family's family.json). family.json is hashed without ``seed_noise`` and
+``best``, the two fields the audit writes, so that a hash names the problem and its search space.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import platform
+import subprocess
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+# The distributions whose version can change a number: the numerics, the learner, the env stack,
+# the proposers' samplers and SDKs, and this project.
+PACKAGES = (
+    "numpy",
+    "scipy",
+    "torch",
+    "gymnasium",
+    "proxsuite",
+    "optuna",
+    "anthropic",
+    "openai",
+    "cwh-autoresearch",
+)
+FAMILY_FILES = ("train.py", "family.json", "program.md", "program_blind.md", "prepare.py")
+AUDIT_WRITES = ("seed_noise", "best")  # family.json fields the audit owns: left out of its hash
+GIT_TIMEOUT_S = 10.0
+
+
+class ProvenanceError(RuntimeError):
+    """The environment differs from the recorded one and --strict-provenance was given."""
+
+
+def collect(family_dir: str | Path) -> dict[str, Any]:
+    """The provenance of work done now on the family in ``family_dir``."""
+    family_dir = Path(family_dir)
+    return {
+        "python": platform.python_version(),
+        "implementation": platform.python_implementation(),
+        "platform": platform.platform(),
+        "packages": {name: _version(name) for name in PACKAGES},
+        "git": git_state(family_dir),
+        "family_files": family_hashes(family_dir),
+    }
+
+
+def family_hashes(family_dir: Path) -> dict[str, str | None]:
+    """sha256 (16 hex digits) of each family file; family.json without the fields the audit writes."""
+    hashes: dict[str, str | None] = {}
+    for name in FAMILY_FILES:
+        path = family_dir / name
+        if not path.is_file():
+            hashes[name] = None
+            continue
+        data = path.read_bytes()
+        if name == "family.json":
+            try:
+                registry = json.loads(data)
+            except ValueError:
+                registry = None
+            if isinstance(registry, dict):
+                kept = {k: v for k, v in registry.items() if k not in AUDIT_WRITES}
+                data = json.dumps(kept, sort_keys=True).encode()
+        hashes[name] = hashlib.sha256(data).hexdigest()[:16]
+    return hashes
+
+
+def git_state(directory: Path) -> dict[str, Any] | None:
+    """{"commit", "dirty"} of the git repository holding ``directory``, or None outside one."""
+    commit = _git(directory, "rev-parse", "HEAD")
+    if commit is None:
+        return None
+    status = _git(directory, "status", "--porcelain", "--untracked-files=no")
+    return {"commit": commit, "dirty": bool(status)}
+
+
+def differences(recorded: dict[str, Any] | None, current: dict[str, Any]) -> list[str]:
+    """Every difference that can change a number, one line each ("" recorded means unrecorded)."""
+    if not recorded:
+        return ["no provenance was recorded (made before provenance was kept)"]
+    found = []
+    for key in ("python", "implementation", "platform"):
+        if recorded.get(key) != current.get(key):
+            found.append(f"{key}: {recorded.get(key)} -> {current.get(key)}")
+    for name in sorted(set(recorded.get("packages") or {}) | set(current.get("packages") or {})):
+        was, now = (recorded.get("packages") or {}).get(name), (current.get("packages") or {}).get(name)
+        if was != now:
+            found.append(f"{name}: {was or 'not installed'} -> {now or 'not installed'}")
+    was, now = (recorded.get("git") or {}).get("commit"), (current.get("git") or {}).get("commit")
+    if was != now:
+        found.append(f"git commit: {was or 'none'} -> {now or 'none'}")
+    for name in FAMILY_FILES:
+        was, now = (
+            (recorded.get("family_files") or {}).get(name),
+            (current.get("family_files") or {}).get(name),
+        )
+        if was != now:
+            found.append(f"family {name}: sha256 {was or 'absent'} -> {now or 'absent'}")
+    return found
+
+
+def report(
+    sources: list[tuple[str, dict[str, Any] | None]], current: dict[str, Any], strict: bool
+) -> list[str]:
+    """The differences of ``current`` against each recorded (label, provenance), as lines; raises
+    ProvenanceError when ``strict`` and there is any."""
+    lines = []
+    for label, recorded in sources:
+        lines += [f"{label}: {line}" for line in differences(recorded, current)]
+    if strict and lines:
+        raise ProvenanceError(
+            "--strict-provenance: the environment differs from the recorded one:\n  " + "\n  ".join(lines)
+        )
+    return lines
+
+
+def _version(distribution: str) -> str | None:
+    try:
+        return metadata.version(distribution)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def _git(directory: Path, *args: str) -> str | None:
+    try:
+        done = subprocess.run(
+            ["git", "-C", str(directory), *args],
+            capture_output=True,
+            text=True,
+            timeout=GIT_TIMEOUT_S,
+            check=False,
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
