@@ -102,11 +102,9 @@ def open_campaign(campaign_dir: str | Path) -> AuditedCampaign:
         raise AuditError(f"{campaign_dir}: not a campaign directory (no campaign.json or proposals.jsonl)")
     try:
         meta = CampaignMeta.read(paths.root)
+        family = meta.open_family(paths.root)
     except CampaignError as err:
         raise AuditError(str(err)) from None
-    if not Path(meta.family).is_dir():
-        raise AuditError(f"{paths.campaign_json}: its family directory {meta.family!r} does not exist")
-    family = Family.load(meta.family)
     return AuditedCampaign(paths, meta, family, read_jsonl(paths.proposals), provenance.collect(family.path))
 
 

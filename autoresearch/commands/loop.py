@@ -206,7 +206,9 @@ def _plan(args: argparse.Namespace) -> tuple[Path, CampaignMeta]:
         meta = CampaignMeta.read(root)
         if args.proposer and args.proposer != meta.proposer:
             raise UsageError(f"this campaign's proposer is {meta.proposer}; a campaign cannot change it")
-        family = resolve_family(args.family or meta.family)
+        # --family may point at the family where it is now; either way it must be the one that ran
+        family = resolve_family(args.family) if args.family else meta.open_family(root)
+        meta.check_family(family)  # refused before any provenance is listed
         recorded = [("campaign.json, first session", meta.provenance)]
         for line in provenance.report(recorded, provenance.collect(family.path), args.strict_provenance):
             print(f"[provenance] {line}", file=sys.stderr)

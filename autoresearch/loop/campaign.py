@@ -12,6 +12,7 @@ from the file belongs to a run in flight (its ``runs/<run_id>/intent.json``).
 
 from __future__ import annotations
 
+import os
 import sys
 from dataclasses import asdict, dataclass, replace
 from datetime import datetime, timezone
@@ -114,15 +115,21 @@ class CampaignMeta:
 
     ``settings`` are the writer's: the loop's flags (commands/loop.py DEFAULTS) for a loop campaign,
     the arm's draw for a random arm. ``group`` names the group a repeat belongs to.
+
+    The family is found from any working directory: ``family_dir`` is its path relative to the
+    campaign directory (written on every write), and :meth:`open_family` checks that what it finds
+    there is the family the campaign ran, by name and by the hash of its family.json (its problem
+    and search space) that the first session's provenance recorded.
     """
 
-    family: str  # the family directory (portable_path)
+    family: str  # the family directory, relative to the writer's working directory (portable_path)
     family_name: str
     proposer: str
     settings: dict[str, Any]
     created: str
     sessions: tuple[dict[str, Any], ...] = ()
     group: dict[str, Any] | None = None  # {"dir": group directory, "repeat": index}
+    family_dir: str | None = None  # the family directory relative to the campaign directory
 
     @classmethod
     def new(cls, family: Family, proposer: str, settings: dict[str, Any]) -> CampaignMeta:
@@ -133,14 +140,44 @@ class CampaignMeta:
 
     def resumed(self, family: Family, settings: dict[str, Any]) -> CampaignMeta:
         """This campaign continued by a new session, its family where it is now, with ``settings``."""
-        if family.name != self.family_name:
-            raise CampaignError(f"this campaign is of family {self.family_name!r}, not {family.name!r}")
+        self.check_family(family)
         return replace(
             self,
             family=portable_path(family.path),
             settings=settings,
             sessions=(*self.sessions, session(family)),
         )
+
+    def check_family(self, family: Family) -> None:
+        """Refuse a family other than the one this campaign ran: another name, or a family.json whose
+        problem or search space differs from the recorded one (CampaignError naming both)."""
+        if family.name != self.family_name:
+            raise CampaignError(f"this campaign is of family {self.family_name!r}, not {family.name!r}")
+        recorded = ((self.provenance or {}).get("family_files") or {}).get("family.json")
+        found = provenance.family_hashes(family.path)["family.json"]
+        if recorded and found != recorded:
+            raise CampaignError(
+                f"{family.path / 'family.json'} is not the family.json this campaign ran (sha256 {found}, "
+                f"recorded {recorded}): its metric, target, baseline or search space changed"
+            )
+
+    def family_path(self, root: str | Path) -> Path:
+        """Where the family is: ``family_dir`` from the campaign directory ``root``; a campaign written
+        before it was kept has only ``family``, relative to where its loop started (the working
+        directory is tried)."""
+        return Path(root) / self.family_dir if self.family_dir else Path(self.family)
+
+    def open_family(self, root: str | Path) -> Family:
+        """The campaign's family, found from any working directory and checked to be the one it ran."""
+        path = self.family_path(root)
+        if not path.is_dir():
+            raise CampaignError(
+                f"{CampaignPaths(Path(root)).campaign_json}: its family directory {path} does not exist "
+                f"(the {self.family_name!r} family it ran was at {self.family!r} then)"
+            )
+        family = Family.load(path)
+        self.check_family(family)
+        return family
 
     @property
     def provenance(self) -> dict[str, Any] | None:
@@ -152,6 +189,8 @@ class CampaignMeta:
         data = {**asdict(self), "sessions": list(self.sessions)}
         if self.group is None:
             del data["group"]
+        if self.family_dir is None:
+            del data["family_dir"]
         return data
 
     @classmethod
@@ -172,6 +211,7 @@ class CampaignMeta:
             data.get("created", ""),
             tuple(data.get("sessions", ())),
             data.get("group"),
+            data.get("family_dir"),
         )
 
     @classmethod
@@ -183,7 +223,11 @@ class CampaignMeta:
             raise CampaignError(str(err)) from err
 
     def write(self, root: str | Path) -> None:
-        write_json_atomic(CampaignPaths(Path(root)).campaign_json, self.to_json())
+        """Write campaign.json into ``root``, with the family's path relative to it (``family`` is
+        relative to this process's working directory, where it was set)."""
+        where = os.path.relpath(Path(self.family).resolve(), Path(root).resolve())
+        located = replace(self, family_dir=Path(where).as_posix())
+        write_json_atomic(CampaignPaths(Path(root)).campaign_json, located.to_json())
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ GAP            saves 1.5 sigma  keep, seen only at two seeds (the equation's gap
 JOINT_A/B      save 0.3 only together: each alone is inert, both reverted regress
 WIDE           erratic: the noise is ten times larger and of the opposite sign
 AUDIT_THROTTLE_SEED (environment): that seed reports a tripled best_train_loss (parity guard).
+AUDIT_SLEEP_S (environment): every run sleeps this long first (an audit made slow on purpose).
 
 --eval-split test (a copy whose family.json sets test_split): the sealed split's loss is the search
 loss plus TEST_OFFSET, so every designed effect holds on it unchanged, and a value of at least
@@ -38,6 +39,7 @@ import json  # noqa: E402
 import math  # noqa: E402
 import os  # noqa: E402
 import sys  # noqa: E402
+import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from filelock import FileLock  # noqa: E402
@@ -87,6 +89,7 @@ def main() -> int:
     parser.add_argument("--out", default="out")
     parser.add_argument("--eval-split", choices=("search", "test"), default="search")
     args = parser.parse_args()
+    time.sleep(float(os.environ.get("AUDIT_SLEEP_S", "0")))
     scores = train(CONFIG, args.seed)
     if args.eval_split == "test":
         search = {"loss": scores["loss"], "feasible": scores["feasible"]}
