@@ -27,7 +27,7 @@ echo "[main] campaign: ${proposer} over the ${SPACE:-random-range} space of ${fa
 autoresearch loop --family "$family" --proposer "$proposer" --space "${SPACE:-random-range}" \
   --max-iters "${RUNS:-4}" --max-failures 100 --plateau-window 100 --seed "${SEED:-16}" \
   --timeout-per-run "${TIMEOUT:-120}" --campaign "$campaign" --plain "${resume[@]}"
-echo "[main] audit: seed noise if the family has none, reseeded verification, pruning, random arm"
+echo "[main] audit: seed noise if the family has none, reseeded verification, pruning, random arm (gated on the sealed test split)"
 autoresearch audit --campaign "$campaign" --noise-seeds "${SEEDS:-3}" --top 1 --seeds "${SEEDS:-3}" \
   --count "${COUNT:-4}" --workers 2
 python - "$campaign" <<'EOF'
@@ -39,10 +39,13 @@ audit = json.loads((root / "audit.json").read_text())
 verify, prune = audit["verify"], audit.get("prune") or {}
 figures = ", ".join(sorted(p.name for p in root.glob("*.png")))
 print(f"[main] report: {root / 'report.md'} (figures beside it: {figures})")
+split = verify.get("split", "search")
 for c in verify["candidates"]:
     margin = f", m = {c['margin']:.2f} sigma" if c.get("margin") is not None else ""
     mean = f"{c['mu_r']:.4g} +- {c['sigma_r']:.2g} (n={c['n']})" if c.get("sigma_r") is not None else "-"
-    print(f"[main] headline: candidate {c['config_id']} reseeded {mean}{margin}: {c['reason']}")
+    search = (c.get("by_split") or {}).get("search") or {}
+    gap = f"; search split {search['mu_r']:.4g}" if split == "test" and search.get("mu_r") is not None else ""
+    print(f"[main] headline: candidate {c['config_id']} reseeded on the {split} split {mean}{gap}{margin}: {c['reason']}")
 if not verify["candidates"]:
     print(f"[main] headline: {verify['reason']}")
 print(f"[main] pruning: {prune.get('reason') or prune.get('status')}")
