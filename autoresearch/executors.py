@@ -19,19 +19,34 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
+# A Ray task's cancellation is checked this often; a cancelled task has this long to kill its run
+# (the runner's SIGTERM grace, and then some) before its worker is killed.
+CANCEL_POLL_S = 0.2
+CANCEL_GRACE_S = 10.0
 T = TypeVar("T")
 R = TypeVar("R")
 OnResult = Callable[[int, Any], None]
 
 
 class Executor(ABC):
-    """Runs ``fn`` over tasks; ``on_result(index, result)`` fires in the caller as each finishes."""
+    """Runs ``fn`` over tasks; ``on_result(index, result)`` fires in the caller as each finishes.
+
+    ``cancel``, set by another thread, stops the tasks in flight and raises KeyboardInterrupt. Local
+    tasks run in this process and take such an event themselves (runner.run_experiment); Ray's run
+    elsewhere, so the Ray executor cancels them.
+    """
 
     name = "executor"
     workers = 1
 
     @abstractmethod
-    def map(self, fn: Callable[[T], R], tasks: Sequence[T], on_result: OnResult | None = None) -> list[R]: ...
+    def map(
+        self,
+        fn: Callable[[T], R],
+        tasks: Sequence[T],
+        on_result: OnResult | None = None,
+        cancel: threading.Event | None = None,
+    ) -> list[R]: ...
 
     def close(self) -> None:  # noqa: B027  (a no-op unless the executor started something)
         """Release what the executor started."""
@@ -53,7 +68,13 @@ class LocalExecutor(Executor):
             raise ValueError(f"--workers must be >= 1 (got {workers})")
         self.workers = workers
 
-    def map(self, fn: Callable[[T], R], tasks: Sequence[T], on_result: OnResult | None = None) -> list[R]:
+    def map(
+        self,
+        fn: Callable[[T], R],
+        tasks: Sequence[T],
+        on_result: OnResult | None = None,
+        cancel: threading.Event | None = None,
+    ) -> list[R]:
         results: list[Any] = [None] * len(tasks)
         if self.workers == 1:
             for i, task in enumerate(tasks):
@@ -109,20 +130,43 @@ class RayExecutor(Executor):
             gpus_per_task = 1 if ray.cluster_resources().get("GPU", 0) > 0 else 0
         self.options = {"num_cpus": cpus_per_task, "num_gpus": gpus_per_task}
 
-    def map(self, fn: Callable[[T], R], tasks: Sequence[T], on_result: OnResult | None = None) -> list[R]:
+    def map(
+        self,
+        fn: Callable[[T], R],
+        tasks: Sequence[T],
+        on_result: OnResult | None = None,
+        cancel: threading.Event | None = None,
+    ) -> list[R]:
         ray = self._ray
         remote = ray.remote(**self.options)(_apply)
         fn_ref = ray.put(fn)  # shipped once, not once per task
         index = {remote.remote(fn_ref, task): i for i, task in enumerate(tasks)}
         results: list[Any] = [None] * len(tasks)
         pending = list(index)
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            i = index[done[0]]
-            results[i] = ray.get(done[0])
-            if on_result:
-                on_result(i, results[i])
+        try:
+            while pending:
+                if cancel is not None and cancel.is_set():
+                    raise KeyboardInterrupt
+                done, pending = ray.wait(pending, num_returns=1, timeout=CANCEL_POLL_S)
+                if done:
+                    i = index[done[0]]
+                    results[i] = ray.get(done[0])
+                    if on_result:
+                        on_result(i, results[i])
+        except BaseException:  # SIGTERM, Ctrl-C, cancel or an error: the runs in flight stop too
+            self._cancel(pending)
+            raise
         return results
+
+    def _cancel(self, refs: list[Any]) -> None:
+        """Cancel ``refs``: a KeyboardInterrupt in each task (the runner then kills its training
+        process group and whatever else the run started), then the worker killed if it lingers."""
+        ray = self._ray
+        for ref in refs:
+            ray.cancel(ref)
+        lingering = ray.wait(refs, num_returns=len(refs), timeout=CANCEL_GRACE_S)[1] if refs else []
+        for ref in lingering:
+            ray.cancel(ref, force=True)
 
     def close(self) -> None:
         if self._started:

@@ -35,7 +35,10 @@ class FamilyError(ValueError):
 
 
 def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    try:
+        return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    except OverflowError:  # an integer float() cannot hold (10**400): JSON integers are unbounded
+        return False
 
 
 @dataclass(frozen=True)
@@ -234,12 +237,15 @@ def _check_train_py(source: str, registry: dict[str, Any], space: SearchSpace, w
 
 def search_view(registry: dict[str, Any]) -> dict[str, Any]:
     """A copy of a family.json registry holding no number measured on the sealed test split: the
-    seed noise without its ``test`` part and no family ``best`` (certified on that split). What a
-    campaign copies and every proposer is shown, so the search never sees what certifies it."""
+    seed noise without its ``test`` part and no audited family ``best`` (certified on that split);
+    a campaign copy's running best stays. What a campaign copies and every proposer is shown, so
+    the search never sees what certifies it."""
     view = json.loads(json.dumps(registry))
     if isinstance(view.get("seed_noise"), dict):
         view["seed_noise"].pop(TEST, None)
-    view["best"] = None
+    best = view.get("best")
+    if not (isinstance(best, dict) and str(best.get("source", "")).startswith("loop:")):
+        view["best"] = None  # a campaign copy's own running best ("loop:<run_id>") is a search value
     return view
 
 

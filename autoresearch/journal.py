@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +42,17 @@ def _fsync_dir(path: Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+@contextmanager
+def _naming(path: Path) -> Iterator[None]:
+    """An OSError of a write on a descriptor (a full disk) names no file: name ``path``."""
+    try:
+        yield
+    except OSError as err:
+        if err.filename is None:
+            err.filename = str(path)
+        raise
 
 
 def _locked(path: Path):
@@ -102,7 +116,7 @@ def append_jsonl(path: str | os.PathLike[str], record: Any) -> None:
     """Append ``record`` as one line, durably, under the file's lock."""
     path = Path(path)
     data = encode_line(record)
-    with _locked(path):
+    with _locked(path), _naming(path):
         fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:
             written = os.write(fd, data)
@@ -127,6 +141,8 @@ def read_jsonl(path: str | os.PathLike[str]) -> list[Any]:
             records.append(json.loads(line))
         except ValueError as err:
             raise JournalError(f"{path}:{lineno}: not a JSON line ({err})") from None
+        except RecursionError:
+            raise JournalError(f"{path}:{lineno}: not a JSON line (nested too deeply)") from None
     return records
 
 
@@ -144,12 +160,44 @@ class Journal:
         return read_jsonl(self.path)
 
 
-def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> None:
-    """Write ``obj`` as JSON so that ``path`` holds either the old or the new content, never a mix."""
-    path = Path(path)
+def _temp_beside(path: Path) -> tuple[int, str]:
+    """A new temporary file next to ``path``, with the mode ``path`` has, or the mode a plain open()
+    gives a new file (0666 less the umask): mkstemp's 0600 would turn a shared 0644 file private."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
+        try:
+            mode = stat.S_IMODE(os.stat(path).st_mode)
+        except FileNotFoundError:
+            mode = 0o666 & ~_umask()
+        os.fchmod(fd, mode)
+    except BaseException:
+        os.close(fd)
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return fd, tmp
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux shows it (os.umask sets it, racing
+    other threads that create files meanwhile)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def write_json_atomic(path: str | os.PathLike[str], obj: Any) -> None:
+    """Write ``obj`` as JSON so that ``path`` holds either the old or the new content, never a mix.
+    The file keeps its mode."""
+    path = Path(path)
+    fd, tmp = _temp_beside(path)
+    try:
+        with _naming(path), os.fdopen(fd, "w", encoding="utf-8") as f:
             json.dump(obj, f, indent=2)
             f.write("\n")
             f.flush()
@@ -167,3 +215,5 @@ def read_json(path: str | os.PathLike[str]) -> Any:
         return json.loads(path.read_text(encoding="utf-8"))
     except ValueError as err:
         raise JournalError(f"{path}: not valid JSON ({err})") from None
+    except RecursionError:
+        raise JournalError(f"{path}: not valid JSON (nested too deeply)") from None

@@ -35,8 +35,22 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
+def is_finite_number(value: Any) -> bool:
+    """A number a float holds finitely. JSON integers are unbounded and ``math.isfinite(10**400)``
+    raises OverflowError, so an integer counts only when float() can hold it."""
+    if not _is_number(value):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 def _describe(value: Any) -> str:
-    text = repr(value)
+    try:
+        text = repr(value)
+    except ValueError:  # an integer of more digits than int -> str converts
+        return f"an integer of about {value.bit_length() * 0.30103:.0f} digits"
     return text if len(text) <= 80 else text[:77] + "..."
 
 
@@ -71,8 +85,8 @@ class ParamSpec:
         if kind in NUMERIC_TYPES:
             allowed |= {"low", "high", "high_exclusive"}
             low, high = spec.get("low"), spec.get("high")
-            if not (_is_number(low) and _is_number(high) and math.isfinite(low) and math.isfinite(high)):
-                raise SpaceError(f"{where}: 'low' and 'high' must be finite numbers")
+            if not (is_finite_number(low) and is_finite_number(high)):
+                raise SpaceError(f"{where}: 'low' and 'high' must be finite numbers a float can hold")
             if kind == "int" and not (isinstance(low, int) and isinstance(high, int)):
                 raise SpaceError(f"{where}: an int parameter needs integer 'low' and 'high'")
             if kind == "log-real" and low <= 0:
@@ -89,7 +103,7 @@ class ParamSpec:
             if not isinstance(choices, list) or not choices:
                 raise SpaceError(f"{where}: a categorical parameter needs a non-empty 'choices' list")
             for choice in choices:
-                if not (isinstance(choice, str) or (_is_number(choice) and math.isfinite(choice))):
+                if not (isinstance(choice, str) or is_finite_number(choice)):
                     raise SpaceError(f"{where}: choices must be strings or finite numbers, got {choice!r}")
             if len({json.dumps(c) for c in choices}) != len(choices):
                 raise SpaceError(f"{where}: choices must be distinct")
@@ -150,19 +164,17 @@ class ParamSpec:
         if not _is_number(value):
             kind = "an integer" if self.type == "int" else "a number"
             raise ValidationError(f"{name}: expected {kind}, got {type(value).__name__} {_describe(value)}")
-        if not math.isfinite(value):
+        if isinstance(value, float) and not math.isfinite(value):
             raise ValidationError(f"{name}: {value!r} is not finite")
-        if self.type == "int":
-            if isinstance(value, float) and not value.is_integer():
-                raise ValidationError(f"{name}: expected an integer, got {value!r}")
-            value = int(value)
-        else:
-            value = float(value) + 0.0  # + 0.0 folds -0.0 into 0.0
+        if self.type == "int" and isinstance(value, float) and not value.is_integer():
+            raise ValidationError(f"{name}: expected an integer, got {value!r}")
+        # Python compares an int with a float exactly, so an integer float() cannot hold (10**400)
+        # is refused here as out of bounds before anything converts it.
         assert self.low is not None and self.high is not None
         above = value >= self.high if self.high_exclusive else value > self.high
         if value < self.low or above:
-            raise ValidationError(f"{name}: {value!r} is outside {self.bounds_text()}")
-        return value
+            raise ValidationError(f"{name}: {_describe(value)} is outside {self.bounds_text()}")
+        return int(value) if self.type == "int" else float(value) + 0.0  # + 0.0 folds -0.0 into 0.0
 
     def sample(self, rng: random.Random) -> Any:
         """One draw from this axis's law (paper Eq. randsearch), over ``random_range`` if declared."""

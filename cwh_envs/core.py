@@ -124,8 +124,8 @@ def check_goals(goals: Any, problem: DockingProblem, batch: int | None = None) -
 
 
 def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """Normalised actions clipped to the box; NaN or a wrong shape is a caller error."""
-    a = np.asarray(actions, dtype=np.float64)
+    """Normalised actions clipped to the box; NaN, a complex value or a wrong shape is a caller error."""
+    a = _real_array(actions, "action", shape)
     if a.shape != shape:
         raise ValueError(f"action must have shape {shape}, got {a.shape}")
     if np.isnan(a).any():
@@ -156,11 +156,25 @@ def check_margin(margin: Any) -> float:
     return float(margin)
 
 
-def _finite_array(value: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
+def _real_array(value: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a new float64 array. A complex value is refused: numpy would drop its imaginary
+    part with no more than a warning."""
     try:
-        x = np.array(value, dtype=np.float64)
+        raw = np.asarray(value)
+    except (TypeError, ValueError) as e:  # e.g. a ragged nesting
+        raise ValueError(f"{name} must be a numeric array of shape {shape}") from e
+    if raw.dtype.kind == "c" or (
+        raw.dtype.kind == "O" and any(isinstance(v, complex | np.complexfloating) for v in raw.flat)
+    ):
+        raise ValueError(f"{name} must be real, got a complex value")
+    try:
+        return raw.astype(np.float64)
     except (TypeError, ValueError) as e:
         raise ValueError(f"{name} must be a numeric array of shape {shape}") from e
+
+
+def _finite_array(value: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    x = _real_array(value, name, shape)
     if x.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {x.shape}")
     if not np.all(np.isfinite(x)):

@@ -14,6 +14,11 @@ import numpy as np
 
 from cwh_envs.dynamics import DISCRETIZATIONS, MASS, MEAN_MOTION, TIME_STEP, cwh_matrices
 
+# The longest episode, in steps. 10**5 steps of the default 10 s are about 180 orbits, over 400
+# times the paper's horizons (80, 240). The envs' constructors walk the horizon step by step
+# (core.state_envelope: about 1 s at this bound), so an unbounded one (10**9) would hang them.
+MAX_HORIZON = 100_000
+
 
 @dataclass(frozen=True)
 class _Orbit:
@@ -36,8 +41,8 @@ class _Orbit:
     def __post_init__(self) -> None:
         if self.discretization not in DISCRETIZATIONS:
             raise ValueError(f"discretization must be one of {DISCRETIZATIONS}, got {self.discretization!r}")
-        if not (isinstance(self.horizon, int | np.integer) and self.horizon >= 2):
-            raise ValueError(f"horizon must be an integer >= 2, got {self.horizon!r}")
+        if not (isinstance(self.horizon, int | np.integer) and 2 <= self.horizon <= MAX_HORIZON):
+            raise ValueError(f"horizon must be an integer in [2, {MAX_HORIZON}], got {self.horizon!r}")
         for name in ("n", "dt", "mass", "u_max"):
             _positive(name, getattr(self, name))
 

@@ -17,7 +17,7 @@ from autoresearch.executors import LocalExecutor
 from autoresearch.journal import read_json
 from autoresearch.loop.campaign import CampaignError, CampaignMeta, portable_path
 
-KEYS = {"family", "family_name", "proposer", "settings", "created", "sessions"}
+KEYS = {"family", "family_name", "proposer", "settings", "created", "sessions", "family_dir"}
 
 
 def test_portable_path_is_relative_inside_the_working_directory(tmp_path, monkeypatch):

@@ -83,6 +83,12 @@ def test_resume_lists_the_differences_and_strict_refuses(tmp_path):
     (toy / "train.py").write_text((toy / "train.py").read_text() + "\n# edited after the campaign ran\n")
     resume = ["loop", "--resume", "--campaign", str(campaign), "--max-iters", "3", "--plain"]
 
+    checked = cli("check", "--campaign", str(campaign))
+    assert (
+        checked.returncode == 0 and "provenance: campaign.json, first session: numpy: 1.0.0" in checked.stdout
+    )
+    assert cli("check", "--campaign", str(campaign), "--strict-provenance").returncode == 1
+
     refused = cli(*resume, "--strict-provenance")
     assert refused.returncode == 2 and "--strict-provenance" in refused.stderr
     assert "numpy: 1.0.0 -> " in refused.stderr and "family train.py: sha256" in refused.stderr

@@ -105,7 +105,7 @@ def test_a_campaign_finds_its_family_from_any_working_directory(tmp_path):
     # A family moved away: the campaign says where it looked and what it expected.
     shutil.move(family.path, tmp_path / "moved")
     code, _, err = finish(cli("verify", "--campaign", str(start / "c"), "--top", "1", "--seeds", "2"))
-    assert code == 2 and "its family directory" in err and "'audit-toy' family" in err
+    assert code == 2 and "its family directory does not exist" in err and "'audit-toy' family" in err
     # ... and --resume --family at its new place continues it, recording where it now is.
     code, _, err = finish(cli(*resume, "--family", str(tmp_path / "moved")))
     assert code == 0, err

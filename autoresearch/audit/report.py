@@ -315,8 +315,9 @@ def split_note(audit: dict[str, Any]) -> str:
     split = verify.get("split", "search")
     if not verify.get("sealed_split"):
         return (
-            "No sealed split: this family declares no test split, so the gate, the pruning and the promoted "
-            "best use the search split the campaign selected on (the paper's protocol)."
+            "No sealed split: this audit's runs were scored on the search split only (the family declared no "
+            "test split when they ran), so the gate, the pruning and the promoted best use the search split "
+            "the campaign selected on (the paper's protocol)."
         )
     if split == "test":
         return (

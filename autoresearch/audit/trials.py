@@ -23,7 +23,7 @@ from autoresearch.audit.progress import TrialProgress
 from autoresearch.executors import Executor
 from autoresearch.family import SEARCH, TEST, Family
 from autoresearch.journal import Journal
-from autoresearch.loop.runner import RunResult, load_result, run_experiment, stop_orphaned_run
+from autoresearch.loop.runner import RunResult, load_result, logged_run, run_experiment, stop_orphaned_run
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,10 @@ def run_trial(
     ):
         return trial_row(family, trial, earlier, eval_split)
     if run_dir.exists():  # a failed or interrupted attempt: its directory is used once
-        stop_orphaned_run(run_dir)
+        stop_orphaned_run(run_dir)  # an orphan of a killed audit, wherever it moved: it must not write twice
+        logged = logged_run(family, runs_log, trial.key, trial.config, trial.seed, eval_split)
+        if logged is not None and logged.ok:  # it finished before it was stopped: its line is the result
+            return trial_row(family, trial, logged, eval_split)
         shutil.rmtree(run_dir)
     result = run_experiment(
         family,

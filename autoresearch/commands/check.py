@@ -6,7 +6,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from autoresearch.audit.inputs import AuditError, open_campaign, provenance_report
+from autoresearch.family import FamilyError
+from autoresearch.journal import JournalError
 from autoresearch.loop import repeats
+from autoresearch.loop.campaign import CampaignError
 from autoresearch.loop.campaign_check import check_campaign
 from autoresearch.loop.campaign_lock import holder, not_a_directory
 
@@ -18,24 +22,43 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description="Check a campaign directory (or each campaign of a --repeats group): campaign.json and "
         "family.json readable; proposals.jsonl with iterations 1, 2, ... once each, whole lines, every "
         "recorded run with its run directory; runs.jsonl with whole lines, each run once and started by "
-        "this campaign. Prints each problem with its repair. Exit 0 when clean, 1 with problems.",
+        "this campaign, every run recorded as ran logged there; audit.json, if any, a JSON object whose "
+        "step parts are objects with a known status. Prints each problem with its repair. Exit 0 when "
+        "clean, 1 with problems.",
         epilog="Example: autoresearch check --campaign runs/docking-tpe-20250101-120000",
     )
     p.add_argument("--campaign", required=True, type=Path, help="campaign (or repeats group) directory")
+    p.add_argument(
+        "--strict-provenance",
+        action="store_true",
+        help="count a difference between the environment now and the recorded one as a problem",
+    )
     return p
 
 
-def _check_one(root: Path) -> bool:
+def _provenance(root: Path) -> list[str]:
+    """The provenance differences of a campaign whose files open (else the problems say why)."""
+    try:
+        return provenance_report(open_campaign(root), strict=False)
+    except (AuditError, CampaignError, FamilyError, JournalError, OSError):
+        return []
+
+
+def _check_one(root: Path, strict: bool) -> bool:
     result = check_campaign(root)
     busy = holder(root)
     note = f"; in use by {busy}, so its files may change as you read them" if busy else ""
-    if not result.problems:
+    differences = _provenance(root)
+    if not result.problems and not (strict and differences):
         print(f"{root}: clean ({result.iterations} iterations){note}")
-        return True
-    print(f"{root}: {len(result.problems)} problem(s), {result.iterations} iterations readable{note}")
+    else:
+        count = len(result.problems) + (len(differences) if strict else 0)
+        print(f"{root}: {count} problem(s), {result.iterations} iterations readable{note}")
     for problem in result.problems:
         print(f"  {problem}")
-    return False
+    for line in differences:  # listed always; problems only with --strict-provenance
+        print(f"  provenance: {line}")
+    return not result.problems and not (strict and differences)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     roots = repeats.repeat_dirs(root) if repeats.is_group(root) else [root]
     try:
-        clean = [_check_one(r) for r in roots]
+        clean = [_check_one(r, args.strict_provenance) for r in roots]
     except OSError as err:  # a file it may not read
         print(f"autoresearch check: error: {err}", file=sys.stderr)
         return 2

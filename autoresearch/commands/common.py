@@ -3,15 +3,24 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 from autoresearch.audit.inputs import AuditError, open_campaign, provenance_report
 from autoresearch.executors import Executor, make_executor
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
 from autoresearch.loop.campaign import CampaignError
+from autoresearch.loop.campaign_check import audit_problems
 from autoresearch.loop.runner import interruptible_runs
+
+# Exit statuses (docs/autoresearch-loop.md, docs/audit.md); 1 is kept for a failed prepare.py --check
+# (loop) and a campaign with problems (check), 130 for an interrupt.
+EXIT_ERROR = 2  # bad input, or a file that does not hold what it must
+EXIT_NO_SPACE = 3  # the disk, a quota or a file-size limit refused a write; what was recorded stands
+NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
 def positive_int(text: str) -> int:
@@ -48,9 +57,37 @@ def describe_noise(noise: dict) -> str:
     return text + (f"; on the test split {test['mean']:.6g} +- {test['std']:.3g}" if test else "")
 
 
+def error_exit(name: str, err: BaseException, again: str = "run the same command again") -> int:
+    """Say ``err`` in one line on stderr and return its exit status: EXIT_NO_SPACE when the disk
+    refused a write, else EXIT_ERROR. ``again`` says how to go on once space is freed."""
+    text = " ".join(str(err).split())
+    if isinstance(err, OSError) and err.errno in NO_SPACE:
+        print(
+            f"autoresearch {name}: error: out of disk space ({text}); free some, then {again}",
+            file=sys.stderr,
+        )
+        return EXIT_NO_SPACE
+    print(f"autoresearch {name}: error: {text}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+def _unreadable_audit(args: argparse.Namespace) -> str | None:
+    """Why the campaign's audit.json cannot be read by the audit steps, or None."""
+    for root in (getattr(args, "campaign", None), getattr(args, "budget_from", None)):
+        problems = audit_problems(root, shape_only=True) if root and Path(root).is_dir() else []
+        if problems:
+            return f"{root}: audit.json: {problems[0].what}; see `autoresearch check --campaign {root}`"
+    return None
+
+
 def run_command(name: str, args: argparse.Namespace, body: Callable[[Executor], None]) -> int:
-    """Run ``body`` with the executor the flags choose; errors become one line and exit code 2, and
-    SIGINT / SIGTERM stop the runs in flight (they are retried when the command is run again)."""
+    """Run ``body`` with the executor the flags choose; errors become one line and exit code 2 (3 when
+    the disk is full), and SIGINT / SIGTERM stop the runs in flight (they are retried when the command
+    is run again)."""
+    refusal = _unreadable_audit(args)
+    if refusal:
+        print(f"autoresearch {name}: error: {refusal}", file=sys.stderr)
+        return EXIT_ERROR
     try:
         with interruptible_runs(), make_executor(args) as executor:
             body(executor)
@@ -58,6 +95,5 @@ def run_command(name: str, args: argparse.Namespace, body: Callable[[Executor], 
         print(f"\nautoresearch {name}: interrupted; run the same command again to resume", file=sys.stderr)
         return 130
     except (AuditError, CampaignError, FamilyError, JournalError, RuntimeError, ValueError, OSError) as err:
-        print(f"autoresearch {name}: error: {err}", file=sys.stderr)
-        return 2
+        return error_exit(name, err)
     return 0

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch import provenance
+from autoresearch.commands.common import error_exit
 from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json
@@ -292,9 +293,8 @@ def run(args: argparse.Namespace) -> int:
         lock = CampaignLock(root, "loop", create=True).acquire()  # one process per campaign
         meta.write(root)
         executor = _executor(args, meta.settings)
-    except (UsageError, FamilyError, CampaignError, ValueError, ImportError, RuntimeError) as err:
-        print(f"autoresearch loop: error: {err}", file=sys.stderr)
-        return 2
+    except (UsageError, FamilyError, CampaignError, ValueError, ImportError, RuntimeError, OSError) as err:
+        return error_exit("loop", err)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     resume_hint = f"autoresearch loop --resume --campaign {root}"
     try:
@@ -303,9 +303,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"\ninterrupted; campaign: {root}\nresume with: {resume_hint}", file=sys.stderr)
         return 130
-    except (CampaignError, JournalError) as err:
-        print(f"autoresearch loop: error: {err}", file=sys.stderr)
-        return 2
+    except (CampaignError, JournalError, OSError) as err:  # OSError: e.g. the disk is full
+        return error_exit("loop", err, resume_hint)
     finally:
         signal.signal(signal.SIGTERM, previous)
         if executor is not None:
@@ -358,9 +357,8 @@ def _run_repeats(args: argparse.Namespace) -> int:
         family.check_outside(root)
         lock = CampaignLock(root, "loop", create=True).acquire()
         group.write()
-    except (UsageError, FamilyError, CampaignError, ValueError, ImportError) as err:
-        print(f"autoresearch loop: error: {err}", file=sys.stderr)
-        return 2
+    except (UsageError, FamilyError, CampaignError, ValueError, ImportError, OSError) as err:
+        return error_exit("loop", err)
     resume_hint = f"autoresearch loop --resume --campaign {root}"
     try:
         with make_executor(args) as executor:
@@ -368,9 +366,8 @@ def _run_repeats(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"\ninterrupted; group: {root}\nresume with: {resume_hint}", file=sys.stderr)
         return 130
-    except (RuntimeError, ValueError) as err:
-        print(f"autoresearch loop: error: {err}", file=sys.stderr)
-        return 2
+    except (RuntimeError, ValueError, OSError) as err:
+        return error_exit("loop", err, resume_hint)
     finally:
         lock.release()
     print(f"group: {root} ({proposer}, {len(outcomes)} repeats, seeds {group.meta['seeds']})")

@@ -161,19 +161,21 @@ class CampaignMeta:
                 f"recorded {recorded}): its metric, target, baseline or search space changed"
             )
 
-    def family_path(self, root: str | Path) -> Path:
-        """Where the family is: ``family_dir`` from the campaign directory ``root``; a campaign written
-        before it was kept has only ``family``, relative to where its loop started (the working
-        directory is tried)."""
-        return Path(root) / self.family_dir if self.family_dir else Path(self.family)
+    def family_paths(self, root: str | Path) -> list[Path]:
+        """Where the family may be, in order: ``family_dir`` from the campaign directory ``root`` (a
+        campaign moved with its family), then ``family`` as written (absolute, or relative to the
+        working directory: a campaign copied elsewhere, or written before ``family_dir`` was kept)."""
+        paths = [Path(root) / self.family_dir] if self.family_dir else []
+        return [*paths, Path(self.family)]
 
     def open_family(self, root: str | Path) -> Family:
         """The campaign's family, found from any working directory and checked to be the one it ran."""
-        path = self.family_path(root)
-        if not path.is_dir():
+        path = next((p for p in self.family_paths(root) if p.is_dir()), None)
+        if path is None:
+            tried = ", ".join(str(p) for p in self.family_paths(root))
             raise CampaignError(
-                f"{CampaignPaths(Path(root)).campaign_json}: its family directory {path} does not exist "
-                f"(the {self.family_name!r} family it ran was at {self.family!r} then)"
+                f"{CampaignPaths(Path(root)).campaign_json}: its family directory does not exist (tried "
+                f"{tried}; the {self.family_name!r} family it ran); pass --family DIR where it is now"
             )
         family = Family.load(path)
         self.check_family(family)

@@ -5,18 +5,21 @@ family directory loads; proposals.jsonl holds one whole JSON record per line wit
 1, 2, 3, ... exactly once each (in any order: with ``loop --workers K`` records follow the order
 runs finish; a number held by a run still in flight, i.e. an intent without a record, may be
 missing), every run it records has its run directory; runs.jsonl has whole
-JSON lines, each run logged once and started by a proposal or an intent of this campaign. A torn
-last line (a crash mid-append) is reported too, though the loop repairs it when it next starts.
+JSON lines, each run logged once and started by a proposal or an intent of this campaign, and every
+run recorded as ran logged there; audit.json, where the audit wrote one, is a JSON object whose
+step parts are objects with a known status. A torn last line (a crash mid-append) is reported too,
+though the loop repairs it when it next starts.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from autoresearch.family import Family, FamilyError
+from autoresearch.family import FamilyError
 from autoresearch.loop.campaign import (
     RUN_STATUSES,
     STATUSES,
@@ -47,7 +50,7 @@ def _lines(path: Path) -> tuple[list[tuple[int, Any]], list[Problem]]:
             continue
         try:
             parsed.append((lineno, json.loads(line)))
-        except ValueError:
+        except (ValueError, RecursionError):  # RecursionError: nested too deeply to parse
             problems.append(
                 Problem(
                     f"{path.name}:{lineno}",
@@ -78,17 +81,12 @@ def _read_object(path: Path, name: str) -> tuple[dict[str, Any] | None, Problem 
     return obj, None
 
 
-def _check_family(family_dir: Any) -> list[Problem]:
-    if not isinstance(family_dir, str) or not Path(family_dir).is_dir():
-        return [
-            Problem(
-                "campaign.json",
-                f"its family directory {family_dir!r} does not exist",
-                "restore the family there, or set 'family' in campaign.json to where it now is",
-            )
-        ]
+def _check_family(meta: CampaignMeta, root: Path) -> list[Problem]:
     try:
-        Family.load(family_dir)
+        meta.open_family(root)
+    except CampaignError as err:
+        repair = "restore the family it ran, or resume with --family DIR where it now is"
+        return [Problem("campaign.json", str(err).split("campaign.json: ", 1)[-1], repair)]
     except FamilyError as err:
         return [Problem("campaign.json", f"its family does not load: {err}", "fix the family")]
     return []
@@ -104,7 +102,7 @@ def _check_meta(paths: CampaignPaths) -> list[Problem]:
             problem = Problem(
                 "campaign.json", str(err).removeprefix("campaign.json: "), "restore it from a backup"
             )
-    problems = [problem] if problem else _check_family(meta.family)
+    problems = [problem] if problem else _check_family(meta, paths.root)
     if paths.family_json.exists():
         registry, problem = _read_object(paths.family_json, "family.json")
         family_name = (raw or {}).get("family_name")
@@ -229,9 +227,7 @@ def _gaps(paths: CampaignPaths, first_line: dict[int, int], records: list[dict[s
 
 
 def _check_runs_log(paths: CampaignPaths, records: list[dict[str, Any]]) -> list[Problem]:
-    if not paths.runs_log.exists():
-        return []
-    lines, problems = _lines(paths.runs_log)
+    lines, problems = _lines(paths.runs_log) if paths.runs_log.exists() else ([], [])
     recorded = {r.get("run_id") for r in records}
     first_line: dict[str, int] = {}
     for lineno, line in lines:
@@ -258,6 +254,53 @@ def _check_runs_log(paths: CampaignPaths, records: list[dict[str, Any]]) -> list
                     f"delete line {lineno}: it is not a result of this campaign",
                 )
             )
+    problems += [
+        Problem(
+            "runs.jsonl",
+            f"run {r.get('run_id')!r} of iteration {r['iteration']} ran, but has no readable line here",
+            "restore runs.jsonl from a backup, or append that record's 'record' field to it as one line "
+            "(train.py printed as its FINAL_METRIC the record it logged)",
+        )
+        for r in records
+        if r.get("status") == "ran" and r.get("run_id") not in first_line
+    ]
+    return problems
+
+
+# audit.json: the parts the audit steps write (autoresearch/audit: noise, verify, the prune rules,
+# the random arms) and the status each holds. Parts of steps unknown here are left alone.
+AUDIT_STEPS = re.compile(r"noise|verify|prune(_paired)?(_candidate)?|random(_matched)?")
+AUDIT_DECIDED_BY = "prune_decided_by"
+AUDIT_STATUSES = ("running", "done", "skipped")
+
+
+def audit_problems(root: str | Path, shape_only: bool = False) -> list[Problem]:
+    """The problems of the campaign's audit.json ([] without one): not a JSON object, or a known
+    step's part that is not an object (what the audit steps and the report cannot read: all
+    ``shape_only`` asks for) or holds no known status."""
+    path = Path(root) / "audit.json"
+    if not path.exists():
+        return []
+    repair = "delete audit.json, or the broken part; the audit steps write theirs again when run"
+    data, problem = _read_object(path, "audit.json")
+    if problem is not None:
+        return [replace(problem, repair=repair)]
+    problems = []
+    for step, part in data.items():
+        if step == AUDIT_DECIDED_BY:
+            if not isinstance(part, dict) or not isinstance(part.get("key"), str):
+                problems.append(Problem("audit.json", f"{step!r} is not an object with a 'key'", repair))
+        elif AUDIT_STEPS.fullmatch(step):
+            if not isinstance(part, dict):
+                problems.append(Problem("audit.json", f"step {step!r} does not hold a JSON object", repair))
+            elif not shape_only and part.get("status") not in AUDIT_STATUSES:
+                problems.append(
+                    Problem(
+                        "audit.json",
+                        f"step {step!r} has status {part.get('status')!r}, not one of {', '.join(AUDIT_STATUSES)}",
+                        repair,
+                    )
+                )
     return problems
 
 
@@ -272,12 +315,13 @@ def check_campaign(root: str | Path) -> CheckResult:
     paths = CampaignPaths(Path(root))
     problems = _check_meta(paths)
     records, proposal_problems = _check_proposals(paths)
-    problems += proposal_problems + _check_runs_log(paths, records)
+    problems += proposal_problems + _check_runs_log(paths, records) + audit_problems(root)
     return CheckResult(len(records), problems)
 
 
 def trail_problems(root: str | Path) -> list[Problem]:
-    """The problems of proposals.jsonl that make its records untrustworthy: duplicates, gaps, lines
-    that are not records (a torn last line is not one: readers skip it)."""
+    """The problems that make a campaign untrustworthy to read back: in proposals.jsonl duplicates,
+    gaps, lines that are not records (a torn last line is not one: readers skip it); and an
+    audit.json the audit steps and the report cannot read (:func:`audit_problems`)."""
     _, problems = _check_proposals(CampaignPaths(Path(root)))
-    return [p for p in problems if p.breaks_trail]
+    return [p for p in problems if p.breaks_trail] + audit_problems(root, shape_only=True)

@@ -15,9 +15,11 @@ are recorded, then the stop record is written (with the highest iteration number
 
 Durability: before a run starts, the iteration's record-to-be is written atomically to
 ``runs/<run_id>/intent.json``. After a crash at any moment, ``--resume`` finds every intent
-without a proposals record and finishes that iteration: it kills what is left of the run,
-then adopts its outcome from ``result.json`` (the runner's verdict) or from the run's line in
-runs.jsonl (train.py finished, with the intent's config and seed), or else marks the run dir
+without a proposals record and finishes that iteration: it kills what is left of the run
+(every process carrying its run directory, wherever it moved: autoresearch.loop.tracking), then
+adopts its outcome from ``result.json`` (the runner's verdict) or from the run's line in
+runs.jsonl (train.py finished, with the intent's config and seed), or records it as timed out
+(still running past its deadline, or killed there by its watchdog), or else marks the run dir
 interrupted and re-runs the same configuration under a new run id (``<run_id>-r2``, ...),
 listing the lost attempts in ``interrupted_run_ids``. No iteration and no run id is recorded twice.
 """
@@ -33,8 +35,8 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.executors import Executor
-from autoresearch.family import SEARCH, Family, search_view
-from autoresearch.journal import Journal, read_json, read_jsonl, repair_torn_tail, write_json_atomic
+from autoresearch.family import Family, search_view
+from autoresearch.journal import Journal, read_json, repair_torn_tail, write_json_atomic
 from autoresearch.loop.campaign import (
     BASELINE_PROPOSER,
     RUN_STATUSES,
@@ -49,9 +51,8 @@ from autoresearch.loop.early_stop import EarlyStopper
 from autoresearch.loop.live import View
 from autoresearch.loop.runner import (
     RunResult,
-    check_record,
-    check_split,
     load_result,
+    logged_run,
     run_experiment,
     run_prepare_check,
     stop_orphaned_run,
@@ -124,8 +125,14 @@ class Orchestrator:
         paths.runs_dir.mkdir(parents=True, exist_ok=True)
         if paths.family_json.exists():
             self.registry = read_json(paths.family_json)
-            if self.registry.get("name") != self.family.name:
-                raise ValueError(f"{paths.family_json} belongs to family {self.registry.get('name')!r}")
+            name = self.registry.get("name") if isinstance(self.registry, dict) else None
+            if name != self.family.name:  # a one-line error, with its repair, not a traceback
+                what = (
+                    f"belongs to family {name!r}, not {self.family.name!r}" if name else "is no family.json"
+                )
+                raise CampaignError(
+                    f"{paths.family_json} {what}; delete it: the loop rewrites it from the records"
+                )
         else:
             # The campaign's own copy: its best is this campaign's running best, not the family's.
             self.registry = search_view(self.family.registry)
@@ -181,33 +188,20 @@ class Orchestrator:
         return pending
 
     def _adopt(self, intent: dict[str, Any]) -> RunResult | None:
-        """The outcome of an in-flight run whose supervisor died, if it finished; None otherwise."""
-        run_dir = self.paths.run_dir(intent["run_id"])
-        stop_orphaned_run(run_dir)
+        """The outcome of an in-flight run whose supervisor died, if it finished or ran out of time
+        (past its deadline at resume, or killed there by its watchdog); None otherwise."""
+        run_id = intent["run_id"]
+        run_dir = self.paths.run_dir(run_id)
+        leftover = stop_orphaned_run(run_dir)  # first: nothing of it may write beside a re-run
         result = load_result(run_dir)
         if result is not None:
             return result
-        for line in read_jsonl(self.paths.runs_log):
-            if isinstance(line, dict) and line.get("run_id") == intent["run_id"]:
-                if not self._matches(line, intent):
-                    continue  # not this run's line (e.g. forged or from another campaign): never adopted
-                value, reason = check_record(line, self.family.metric, intent["run_id"])
-                reason = reason or check_split(line, self.family.metric, SEARCH)
-                if reason is not None:
-                    return RunResult("failed", intent["run_id"], None, reason, None, None)
-                return RunResult("ok", intent["run_id"], line, None, None, None, value)
+        logged = logged_run(self.family, self.paths.runs_log, run_id, intent["config"], intent["seed"])
+        if logged is not None:
+            return logged
+        if leftover.overdue is not None:
+            return RunResult("timeout", run_id, None, leftover.overdue, None, None)
         return None
-
-    def _matches(self, line: dict[str, Any], intent: dict[str, Any]) -> bool:
-        """Whether a runs.jsonl line is the run the intent started: same configuration and seed."""
-        config = line.get("config")
-        try:
-            same_config = (
-                isinstance(config, dict) and self.family.space.validate_full(config) == intent["config"]
-            )
-        except ValidationError:
-            return False
-        return same_config and line.get("seed") == intent["seed"]
 
     def _mark_interrupted(self, intent: dict[str, Any], why: str) -> None:
         write_json_atomic(
@@ -483,7 +477,7 @@ class Orchestrator:
         }
         executor = self.settings.executor
         if executor is not None and executor.name == "ray":
-            return executor.map(_run_task, [task])[0]
+            return executor.map(_run_task, [task], cancel=self._cancel)[0]  # cancelled as the loop unwinds
         return run_experiment(
             **task,
             on_progress=lambda elapsed: self.view.run_progress(elapsed, run_id),

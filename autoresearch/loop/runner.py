@@ -5,7 +5,10 @@ which is also the working directory of the subprocess; ``FAMILY_DIR`` tells the 
 family's files are, and the family directory is put on ``PYTHONPATH`` so sibling modules import.
 The subprocess runs without a shell in its own session (process group); a wall-clock timeout,
 an interrupt of the caller, or leftover children after exit all end in ``os.killpg`` of that
-group. A run succeeds only if it exits 0 and prints exactly one valid ``FINAL_METRIC:`` line.
+group, and in the kill of every other process the run started, found by the run directory in its
+``AUTORESEARCH_RUN`` wherever it moved (autoresearch.loop.tracking, which also gives each run a
+watchdog that holds its deadline should the supervisor die). A run succeeds only if it exits 0
+and prints exactly one valid ``FINAL_METRIC:`` line; stdout is read in bounded memory.
 
 ``eval_split="test"`` (the audit, for a family with a sealed test split) adds ``--eval-split
 test``: the record is then scored on the test split and must carry the search split's metrics of
@@ -36,14 +39,21 @@ from pathlib import Path
 from typing import Any, Literal
 
 from autoresearch.family import SEARCH, TEST, Family
-from autoresearch.journal import read_json, repair_torn_tail, write_json_atomic
-from autoresearch.loop import editable
+from autoresearch.journal import read_json, read_jsonl, repair_torn_tail, write_json_atomic
+from autoresearch.loop import editable, tracking
+from autoresearch.space import ValidationError, is_finite_number
 
 FINAL_METRIC_PREFIX = "FINAL_METRIC:"
 PROGRESS_PREFIX = "PROGRESS:"
+_FINAL, _PROGRESS = FINAL_METRIC_PREFIX.encode(), PROGRESS_PREFIX.encode()
 KILL_GRACE_S = 2.0
 POLL_S = 0.05
 STDERR_TAIL = 600
+# stdout is read in blocks, at most POLL_READ bytes a poll, keeping no line longer than MAX_LINE
+# bytes: a protocol line is about 1 KB, so the loop's memory never grows with what a run prints.
+READ_BLOCK = 1 << 20
+POLL_READ = 16 << 20
+MAX_LINE = 1 << 20
 
 RunStatus = Literal["ok", "failed", "timeout", "early_stopped"]
 
@@ -94,10 +104,41 @@ def check_record(record: Any, metric: str, run_id: str) -> tuple[float | None, s
         return None, f"FINAL_METRIC has no primary metric {metric!r}"
     value = record[metric]
     if not isinstance(value, (int, float)) or isinstance(value, bool):
-        return None, f"FINAL_METRIC {metric!r} is not a number: {value!r}"
-    if not math.isfinite(value):
+        return None, f"FINAL_METRIC {metric!r} is not a number: {_describe(value)}"
+    if isinstance(value, float) and not math.isfinite(value):
         return None, f"FINAL_METRIC {metric!r} is not finite: {value!r}"
+    where = _unbounded_int(record)
+    if where is not None:
+        return None, f"FINAL_METRIC holds an integer too large for a float at {where}"
     return float(value), None
+
+
+def _unbounded_int(data: Any) -> str | None:
+    """Where parsed JSON holds an integer float() cannot hold (JSON integers are unbounded), or None.
+    Such a number anywhere in a record (its metric, its constraints) raises OverflowError where used."""
+    stack: list[tuple[tuple[Any, ...], Any]] = [((), data)]
+    while stack:  # iterative: the data came from an untrusted line
+        path, item = stack.pop()
+        if isinstance(item, dict):
+            stack.extend(((*path, k), v) for k, v in item.items())
+        elif isinstance(item, list):
+            stack.extend(((*path, i), v) for i, v in enumerate(item))
+        elif isinstance(item, int) and not isinstance(item, bool) and not is_finite_number(item):
+            return "".join(f"[{key!r}]" for key in path) or "its top level"
+    return None
+
+
+def _describe(value: Any) -> str:
+    text = repr(value) if is_finite_number(value) or not isinstance(value, int) else "a huge integer"
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _loads(text: str | bytes) -> Any:
+    """json.loads that fails with ValueError only: a nesting too deep raises RecursionError."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("nested too deeply") from None
 
 
 def parse_final_metric(
@@ -105,12 +146,21 @@ def parse_final_metric(
 ) -> tuple[dict[str, Any] | None, float | None, str | None]:
     """(record, metric value, None) from exactly one valid FINAL_METRIC line, else (.., .., reason)."""
     lines = [line for line in stdout.splitlines() if line.startswith(FINAL_METRIC_PREFIX)]
-    if not lines:
+    return final_metric(lines[:1], len(lines), metric, run_id)
+
+
+def final_metric(
+    lines: list[str], count: int, metric: str, run_id: str
+) -> tuple[dict[str, Any] | None, float | None, str | None]:
+    """:func:`parse_final_metric` from the first FINAL_METRIC line (or none) and how many there were."""
+    if count == 0:
         return None, None, "no FINAL_METRIC line on stdout"
-    if len(lines) > 1:
-        return None, None, f"{len(lines)} FINAL_METRIC lines on stdout; exactly one is required"
+    if count > 1:
+        return None, None, f"{count} FINAL_METRIC lines on stdout; exactly one is required"
+    if not lines:
+        return None, None, f"the FINAL_METRIC line is longer than {MAX_LINE} bytes"
     try:
-        record = json.loads(lines[0][len(FINAL_METRIC_PREFIX) :])
+        record = _loads(lines[0][len(FINAL_METRIC_PREFIX) :])
     except ValueError as err:
         return None, None, f"FINAL_METRIC is not valid JSON ({err})"
     value, reason = check_record(record, metric, run_id)
@@ -136,54 +186,110 @@ def parse_progress(line: str, metric: str) -> dict[str, Any] | None:
     if not line.startswith(PROGRESS_PREFIX):
         return None
     try:
-        data = json.loads(line[len(PROGRESS_PREFIX) :])
+        data = _loads(line[len(PROGRESS_PREFIX) :])
     except ValueError:
         return None
     if not isinstance(data, dict):
         return None
     step, value = data.get("step"), data.get(metric)
-    if not isinstance(step, int) or isinstance(step, bool):
-        return None
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+    if not isinstance(step, int) or not is_finite_number(step) or not is_finite_number(value):
         return None
     return {"step": step, "value": float(value)}
 
 
-class ProgressReader:
-    """Reads the PROGRESS lines a run appends to its stdout file, as they come.
+class StdoutReader:
+    """Reads a run's stdout file as it grows, in bounded memory, and keeps only the protocol lines.
 
-    ``on_report(step, value)`` is asked at each new point; once it answers True, ``stop`` is set.
+    A line ends at ``\n`` or ``\r`` (a progress bar's carriage returns end lines too, so they are
+    read once and dropped). Each PROGRESS point is kept and ``on_report(step, value)`` is asked;
+    once it answers True, ``stop`` is set. Of the FINAL_METRIC lines the first is kept and all are
+    counted. A line longer than :data:`MAX_LINE` bytes is skipped (a FINAL_METRIC one is counted),
+    so memory stays bounded whatever the run prints.
     """
 
     def __init__(self, path: Path, metric: str, on_report: Callable[[int, float], bool] | None):
         self.path, self.metric, self.on_report = path, metric, on_report
         self.offset = 0
+        self.partial = b""  # the start of a line not yet ended
+        self.skipping = False  # inside a line longer than MAX_LINE, dropped up to its end
         self.points: list[dict[str, Any]] = []
+        self.finals: list[str] = []  # the first FINAL_METRIC line
+        self.n_finals = 0
         self.stop = False
 
-    def poll(self) -> bool:
-        """Read what was appended since the last call; True when the run should stop."""
+    def poll(self, budget: int = POLL_READ) -> bool:
+        """Read (up to ``budget`` bytes of) what was appended since the last call; True when the run
+        should stop. A line still being written waits for the next call."""
         try:
             with open(self.path, "rb") as f:
                 f.seek(self.offset)
-                chunk = f.read()
+                while budget > 0 and (block := f.read(min(READ_BLOCK, budget))):
+                    self.offset += len(block)
+                    budget -= len(block)
+                    self._feed(block)
         except FileNotFoundError:
-            return False
-        complete = chunk[: chunk.rfind(b"\n") + 1]  # a line still being written waits for the next poll
-        self.offset += len(complete)
-        for raw in complete.splitlines():
-            point = parse_progress(raw.decode("utf-8", errors="replace"), self.metric)
-            if point is None or self.stop:
-                continue
-            self.points.append(point)
-            if self.on_report is not None and self.on_report(point["step"], point["value"]):
-                self.stop = True
+            pass
         return self.stop
+
+    def finish(self) -> None:
+        """The run is over: read the rest; its last line needs no line end. Points are kept, not judged."""
+        self.on_report = None
+        before = -1
+        while self.offset != before:
+            before = self.offset
+            self.poll()
+        if self.partial and not self.skipping:
+            self._line(self.partial)
+        self.partial, self.skipping = b"", False
+
+    def _feed(self, block: bytes) -> None:
+        data = self.partial + block
+        end = max(data.rfind(b"\n"), data.rfind(b"\r"))
+        complete, self.partial = data[: end + 1], data[end + 1 :]
+        if self.skipping and complete:  # the overlong line ends at the first line end
+            cut = min(i for i in (complete.find(b"\n"), complete.find(b"\r")) if i >= 0)
+            complete, self.skipping = complete[cut + 1 :], False
+        if self.skipping:
+            self.partial = b""
+        elif len(self.partial) > MAX_LINE:
+            self._overlong(self.partial)
+            self.partial, self.skipping = b"", True
+        # Most output holds no protocol line: skip the split unless one may be there.
+        if _PROGRESS in complete or _FINAL in complete:
+            for raw in complete.splitlines():
+                self._line(raw)
+
+    def _overlong(self, start: bytes) -> None:
+        if start.startswith(_FINAL):
+            self.n_finals += 1  # counted, not kept: the run fails with the reason
+
+    def _line(self, raw: bytes) -> None:
+        if len(raw) > MAX_LINE:
+            self._overlong(raw)
+            return
+        if raw.startswith(_FINAL):
+            self.n_finals += 1
+            if self.n_finals == 1:
+                self.finals.append(raw.decode("utf-8", errors="replace"))
+            return
+        point = parse_progress(raw.decode("utf-8", errors="replace"), self.metric)
+        if point is None or self.stop:
+            return
+        self.points.append(point)
+        if self.on_report is not None and self.on_report(point["step"], point["value"]):
+            self.stop = True
 
 
 def _tail(path: Path) -> str:
-    text = path.read_text(encoding="utf-8", errors="replace").strip() if path.exists() else ""
-    return text if len(text) <= STDERR_TAIL else "..." + text[-STDERR_TAIL:]
+    """The last :data:`STDERR_TAIL` characters of a file, read from its end (it may be huge)."""
+    try:
+        with open(path, "rb") as f:
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(0, size - 4 * STDERR_TAIL))  # up to 4 bytes a character
+            text = f.read().decode("utf-8", errors="replace").strip()
+    except FileNotFoundError:
+        return ""
+    return text if len(text) <= STDERR_TAIL and size <= 4 * STDERR_TAIL else "..." + text[-STDERR_TAIL:]
 
 
 def _kill_group(pgid: int) -> None:
@@ -331,29 +437,47 @@ def run_experiment(
         *(["--eval-split", TEST] if eval_split == TEST else []),
     ]
     started = time.monotonic()
-    reader = ProgressReader(run_dir / "stdout.txt", family.metric, on_report)
-    with open(run_dir / "stdout.txt", "wb") as out, open(run_dir / "stderr.txt", "wb") as err:
-        returncode, timed_out = run_in_group(
-            cmd,
-            cwd=run_dir,
-            env=family_env(family),
-            stdout=out,
-            stderr=err,
-            timeout=timeout,
-            on_start=lambda pid: write_json_atomic(run_dir / "process.json", {"pid": pid, "cmd": cmd}),
-            on_progress=on_progress,
-            should_stop=reader.poll,
-            cancel=cancel,
-        )
+    reader = StdoutReader(run_dir / "stdout.txt", family.metric, on_report)
+    tracked = run_dir.resolve()  # what every process of the run carries in RUN_ENV
+    watchdog: subprocess.Popen | None = None
+
+    def on_start(pid: int) -> None:
+        nonlocal watchdog
+        deadline, born = time.time() + timeout, tracking.start_time(pid)
+        info = {"pid": pid, "start_time": born, "deadline": deadline, "timeout": timeout, "cmd": cmd}
+        write_json_atomic(run_dir / "process.json", info)
+        if born is not None:  # None: no /proc, so nothing to watch with
+            watchdog = tracking.start_watchdog(tracked, pid, born, deadline)
+
+    try:
+        with open(run_dir / "stdout.txt", "wb") as out, open(run_dir / "stderr.txt", "wb") as err:
+            returncode, timed_out = run_in_group(
+                cmd,
+                cwd=run_dir,
+                env={**family_env(family), tracking.RUN_ENV: str(tracked)},
+                stdout=out,
+                stderr=err,
+                timeout=timeout,
+                on_start=on_start,
+                on_progress=on_progress,
+                should_stop=reader.poll,
+                cancel=cancel,
+            )
+    finally:
+        # However the run ended: what it left outside its process group (a child that called setsid)
+        # dies with it, and so does its watchdog, needed only without a supervisor.
+        if watchdog is not None:
+            watchdog.kill()
+            watchdog.wait()
+        tracking.kill_all(tracked)
     wall = time.monotonic() - started
     if reader.stop:
         last = reader.points[-1]
         reason = f"stopped early at step {last['step']} ({family.metric} {last['value']:.6g} then)"
         result = RunResult("early_stopped", run_id, None, reason, wall, returncode)
     else:
-        reader.on_report = None  # the run is over: the last lines are kept, not judged
-        reader.poll()
-        result = _result(family, run_id, run_dir, returncode, wall, timed_out, timeout, eval_split)
+        reader.finish()
+        result = _result(family, run_id, run_dir, reader, returncode, wall, timed_out, timeout, eval_split)
     result = replace(result, progress=reader.points or None)
     write_json_atomic(run_dir / "result.json", result.to_json())
     return result
@@ -363,6 +487,7 @@ def _result(
     family: Family,
     run_id: str,
     run_dir: Path,
+    reader: StdoutReader,
     returncode: int,
     wall: float,
     timed_out: bool,
@@ -376,13 +501,34 @@ def _result(
         tail = _tail(run_dir / "stderr.txt")
         reason = f"train.py exited with code {returncode}" + (f": {tail}" if tail else "")
         return RunResult("failed", run_id, None, reason, wall, returncode)
-    stdout = (run_dir / "stdout.txt").read_text(encoding="utf-8", errors="replace")
-    record, value, reason = parse_final_metric(stdout, family.metric, run_id)
+    record, value, reason = final_metric(reader.finals, reader.n_finals, family.metric, run_id)
     if reason is None:
         reason = check_split(record, family.metric, eval_split)
     if reason is not None:
         return RunResult("failed", run_id, None, reason, wall, returncode)
     return RunResult("ok", run_id, record, None, wall, returncode, value)
+
+
+def logged_run(
+    family: Family, runs_log: Path, run_id: str, config: dict[str, Any], seed: int, eval_split: str = SEARCH
+) -> RunResult | None:
+    """The outcome of run ``run_id`` from its line in ``runs_log`` (train.py appends it as it ends), for
+    a run whose supervisor died before saving its result; None without such a line. A line counts
+    only with this configuration and seed: a forged or foreign line is never adopted."""
+    for line in read_jsonl(runs_log):
+        if not isinstance(line, dict) or line.get("run_id") != run_id or line.get("seed") != seed:
+            continue
+        try:
+            if family.space.validate_full(line.get("config")) != config:
+                continue
+        except ValidationError:
+            continue
+        value, reason = check_record(line, family.metric, run_id)
+        reason = reason or check_split(line, family.metric, eval_split)
+        if reason is not None:
+            return RunResult("failed", run_id, None, reason, None, None)
+        return RunResult("ok", run_id, line, None, None, None, value)
+    return None
 
 
 def load_result(run_dir: Path) -> RunResult | None:
@@ -427,26 +573,61 @@ def _group_members(pgid: int) -> list[tuple[int, str]]:
     return members
 
 
-def stop_orphaned_run(run_dir: Path, wait_s: float = 10.0) -> bool:
-    """Kill what is left of a run whose supervisor died (e.g. kill -9 of the loop); True if any was.
+@dataclass(frozen=True)
+class Leftover:
+    """What :func:`stop_orphaned_run` found of a run whose supervisor died. True when it killed any."""
 
-    The process group is killed only once a member is proven to be this run's (its working
-    directory is ``run_dir``), so a recycled pid can never take an unrelated process down.
+    killed: int
+    overdue: str | None = None  # why the run counts as timed out, when it does
+
+    def __bool__(self) -> bool:
+        return self.killed > 0
+
+
+def stop_orphaned_run(run_dir: Path, wait_s: float = 10.0) -> Leftover:
+    """Kill what is left of a run whose supervisor died (e.g. kill -9 of the loop or the audit).
+
+    Its processes are those carrying the run directory in ``AUTORESEARCH_RUN``
+    (autoresearch.loop.tracking), wherever they moved and whatever session they made; its watchdog
+    goes first. A run still running past the deadline in process.json, or killed there by its
+    watchdog, is overdue.
+    A process.json without a deadline (written before runs were tracked) names a process group that
+    is killed only once a member is proven to be this run's: its working directory is ``run_dir``.
     """
+    run_dir = run_dir.resolve()
     info_path = run_dir / "process.json"
-    if not info_path.exists() or not Path("/proc").is_dir():
-        return False
-    pgid = int(read_json(info_path)["pid"])
+    info = read_json(info_path) if info_path.exists() else {}
+    info = info if isinstance(info, dict) else {}
+    tracking.kill_all(run_dir, tracking.WATCHDOG_ENV, wait_s)
+    alive = tracking.processes(run_dir)
+    overdue, deadline, timeout = None, info.get("deadline"), info.get("timeout")
+    limit = f"{timeout:g} s wall-clock limit" if isinstance(timeout, (int, float)) else "wall-clock limit"
+    if alive and isinstance(deadline, (int, float)) and time.time() > deadline:
+        overdue = f"still running past its {limit} at resume; killed"
+    elif (run_dir / tracking.WATCHDOG_FILE).exists():
+        watchdog = read_json(run_dir / tracking.WATCHDOG_FILE)
+        overdue = f"exceeded its {limit}: " + str(
+            watchdog.get("reason") if isinstance(watchdog, dict) else ""
+        )
+    killed = tracking.kill_all(run_dir, tracking.RUN_ENV, wait_s) if alive else 0
+    if "pid" in info and "deadline" not in info and Path("/proc").is_dir():
+        killed += _stop_legacy_group(int(info["pid"]), run_dir, wait_s)
+    return Leftover(killed, overdue)
+
+
+def _stop_legacy_group(pgid: int, run_dir: Path, wait_s: float) -> int:
+    """Kill process group ``pgid`` if a member's working directory is ``run_dir``; its size then."""
+    members = _group_members(pgid)
     ours = False
-    for pid, _ in _group_members(pgid):
+    for pid, _ in members:
         try:
-            ours = ours or Path(os.readlink(f"/proc/{pid}/cwd")) == run_dir.resolve()
+            ours = ours or Path(os.readlink(f"/proc/{pid}/cwd")) == run_dir
         except OSError:
             continue
     if not ours:
-        return False
+        return 0
     _kill_group(pgid)
     deadline = time.monotonic() + wait_s
     while _group_members(pgid) and time.monotonic() < deadline:
         time.sleep(POLL_S)
-    return True
+    return len(members)

@@ -24,8 +24,10 @@ def read_queue(path: str | Path) -> list[dict[str, Any]]:
     """The entries of an --enqueue file: one JSON object or a list of them."""
     try:
         entries = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as err:
+    except (OSError, ValueError) as err:  # ValueError: bad JSON, or an integer of > 4300 digits
         raise ValueError(f"--enqueue {path}: {err}") from None
+    except RecursionError:
+        raise ValueError(f"--enqueue {path}: JSON nested too deeply") from None
     entries = [entries] if isinstance(entries, dict) else entries
     if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
         raise ValueError(f"--enqueue {path}: expected a JSON object or a non-empty list of objects")

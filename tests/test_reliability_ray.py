@@ -1,0 +1,66 @@
+"""SIGTERM under Ray cancels the runs in flight instead of waiting for them (issue 29, item 6)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from loop_helpers import copy_toy
+
+
+def _processes_naming(text: str) -> list[tuple[int, str]]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
+            if text in cmdline:  # a zombie's command line is empty
+                found.append((int(entry.name), cmdline))
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["loop", "noise"])
+def test_sigterm_under_ray_cancels_the_runs_in_flight(tmp_path, command):
+    pytest.importorskip("ray", reason="the optional extra 'ray' is not installed")
+    toy, out = copy_toy(tmp_path), tmp_path / "out"
+    cmd = [sys.executable, "-m", "autoresearch", command, "--family", str(toy), "--executor", "ray"]
+    cmd += ["--workers", "2"]
+    if command == "loop":
+        cmd += ["--proposer", "random", "--max-iters", "3", "--campaign", str(out), "--plain"]
+        started = "runs/*/process.json"
+    else:
+        cmd += ["--seeds", "2", "--out", str(out)]
+        started = "*/process.json"
+    proc = subprocess.Popen(
+        cmd,
+        env={**os.environ, "TOY_SLEEP_S": "300"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(out.glob(started))) < 2:
+            assert time.monotonic() < deadline and proc.poll() is None, "no two runs started"
+            time.sleep(0.1)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGTERM)
+        sent = time.monotonic()
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err[-2000:]
+        assert time.monotonic() - sent < 30  # not the 300 s the runs would take
+        assert _processes_naming(str(out)) == []  # both train.py and their watchdogs are gone
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for pid, _ in _processes_naming(str(out)):  # what a failure left behind
+            os.kill(pid, signal.SIGKILL)
