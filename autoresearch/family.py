@@ -197,14 +197,23 @@ def _check_registry(registry: Any, where: Path) -> SearchSpace:
         space.validate_full(baseline["config"])
     except ValidationError as err:
         raise bad("baseline.config", f"is not a point of the search space: {err}") from None
+    if "metric" in baseline and not _number(baseline["metric"]):
+        raise bad("baseline.metric", "must be a finite number")
     noise = registry.get("seed_noise")
     if noise is not None and not (
         isinstance(noise, dict) and _number(noise.get("std")) and noise["std"] >= 0
     ):
         raise bad("seed_noise", "must be null or an object with a finite 'std' >= 0")
+    for part, name in ((noise, "seed_noise"), ((noise or {}).get(TEST), "seed_noise.test")):
+        for key in ("mean", "std"):  # read as numbers by the audit and the prompts
+            if isinstance(part, dict) and key in part and not _number(part[key]):
+                raise bad(f"{name}.{key}", "must be a finite number")
     best = registry.get("best")
     if best is not None and not (isinstance(best, dict) and isinstance(best.get("config"), dict)):
         raise bad("best", "must be null or an object with a 'config'")
+    for key in ("metric", "std"):
+        if isinstance(best, dict) and best.get(key) is not None and not _number(best[key]):
+            raise bad(f"best.{key}", "must be a finite number or null")
     return space
 
 

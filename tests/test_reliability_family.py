@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
 from loop_helpers import copy_toy
 
@@ -124,3 +125,23 @@ def test_a_campaign_written_before_family_dir_still_resumes_from_its_directory(t
     code, _, err = finish(cli(*resume, cwd=tmp_path))
     assert code == 0, err
     assert read_json(campaign / "campaign.json")["family_dir"] == "../toy"
+
+
+def test_numbers_the_audit_and_the_prompts_read_from_family_json_are_checked(tmp_path):
+    from autoresearch.family import Family, FamilyError
+
+    toy = copy_toy(tmp_path)
+    registry = read_json(toy / "family.json")
+    cases = {
+        "baseline.metric": {**registry, "baseline": {**registry["baseline"], "metric": 10**400}},
+        "seed_noise.mean": {**registry, "seed_noise": {"mean": 10**400, "std": 0.1, "k": 2}},
+        "seed_noise.test.std": {
+            **registry,
+            "seed_noise": {"mean": 1.0, "std": 0.1, "k": 2, "test": {"mean": 1.0, "std": float("nan")}},
+        },
+        "best.metric": {**registry, "best": {"config": registry["baseline"]["config"], "metric": 10**400}},
+    }
+    for field, bad in cases.items():
+        (toy / "family.json").write_text(json.dumps(bad))
+        with pytest.raises(FamilyError, match=field.replace(".", r"\.")):
+            Family.load(toy)

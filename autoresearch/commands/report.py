@@ -8,6 +8,7 @@ from pathlib import Path
 
 from autoresearch.audit.inputs import AuditError
 from autoresearch.audit.report import write_report
+from autoresearch.commands.common import error_exit
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
 from autoresearch.loop.campaign_check import trail_problems
@@ -55,6 +56,5 @@ def run(args: argparse.Namespace) -> int:
     try:
         print(write_report(args.campaign, arms=args.arm, out_dir=args.out))
     except (AuditError, FamilyError, JournalError, OSError) as err:
-        print(f"autoresearch report: error: {err}", file=sys.stderr)
-        return 2
+        return error_exit("report", err)  # 3 when the disk is full, like every other command
     return 0
