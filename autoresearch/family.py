@@ -20,11 +20,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from autoresearch.loop.editable import EditableError, read_region
+from autoresearch.direction import Direction
+from autoresearch.editable import EditableError, read_region
 from autoresearch.space import SearchSpace, SpaceError, ValidationError
 
 REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")
-DIRECTIONS = {"maximize": +1, "minimize": -1}
 SEARCH, TEST = "search", "test"  # the evaluation splits: selected on, and sealed
 # A family name becomes part of paths (runs/<name>-...): a plain file name, nothing to escape.
 PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
@@ -56,9 +56,9 @@ class Family:
         return self.registry["metric"]
 
     @property
-    def direction(self) -> int:
-        """sigma_dir: +1 when larger metric values are better, -1 when smaller are."""
-        return DIRECTIONS[self.registry["direction"]]
+    def direction(self) -> Direction:
+        """sigma_dir: Direction.MAXIMIZE (+1) when larger metric values are better, MINIMIZE (-1) when smaller are."""
+        return Direction.of(self.registry["direction"])
 
     @property
     def target(self) -> float | None:
@@ -164,7 +164,7 @@ def _check_registry(registry: Any, where: Path) -> SearchSpace:
             "name",
             f"must be a plain name (letters, digits, '_', '-', '.'; no '/' or '..'), got {registry['name']!r}",
         )
-    if registry.get("direction") not in DIRECTIONS:
+    if registry.get("direction") not in ("maximize", "minimize"):
         raise bad("direction", f"must be 'maximize' or 'minimize', got {registry.get('direction')!r}")
     if registry.get("target") is not None and not _number(registry["target"]):
         raise bad("target", "must be a finite number or null")

@@ -48,7 +48,7 @@ class CmaEsProposer(TPEProposer):
             warn_independent_sampling=False,
             with_margin=True,
         )
-        study = optuna.create_study(direction=self.study_direction, sampler=sampler)
+        study = optuna.create_study(direction=self.direction.study, sampler=sampler)
         study.add_trials(trials)
         return self.space.validate_full(study.ask(self.distributions).params)
 

@@ -7,6 +7,7 @@ from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
 
 from autoresearch.audit.inputs import AuditedCampaign
 from autoresearch.audit.verify import rank_candidates
+from autoresearch.direction import Direction
 from autoresearch.family import Family
 from autoresearch.loop.campaign import CampaignPaths, CampaignState
 from autoresearch.loop.context import build_context
@@ -72,7 +73,7 @@ def test_a_hopeless_run_is_stopped_early_and_never_counts(tmp_path, pruner):
     campaign = AuditedCampaign(CampaignPaths(tmp_path / "c"), {}, family, records)
     assert hopeless["run_id"] not in [c["source"]["run_id"] for c in rank_candidates(campaign, 10)]
     # On --resume the pruner's study is rebuilt from the records' curves.
-    study = EarlyStopper(pruner, "minimize", records).study
+    study = EarlyStopper(pruner, Direction.MINIMIZE, records).study
     pruned = [r for r in records if r["status"] == "pruned"]  # ASHA also stops some good runs
     assert [t.state.name for t in study.trials].count("PRUNED") == len(pruned) >= 1
     assert len(study.trials) == len(ran) + len(pruned)

@@ -20,6 +20,7 @@ from autoresearch.loop import repeats
 from autoresearch.loop.campaign import CampaignError, CampaignMeta, CampaignPaths, portable_path, session
 from autoresearch.loop.campaign_lock import LOCK_FILE, CampaignLock
 from autoresearch.loop.context import shown_registry
+from autoresearch.loop.dry_run import dry_run
 from autoresearch.loop.early_stop import EARLY_STOP
 from autoresearch.loop.live import make_view
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
@@ -27,7 +28,7 @@ from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers import DEFAULT_SPACE, KEY_FREE, PROPOSERS, make_proposer
 from autoresearch.proposers.base import Proposer
 from autoresearch.proposers.enqueued import EnqueuedProposer, full_queue, read_queue
-from autoresearch.proposers.llm_options import LLM_DEFAULTS, add_llm_arguments, dry_run, llm_kwargs
+from autoresearch.proposers.llm_options import LLM_DEFAULTS, add_llm_arguments, llm_kwargs
 from autoresearch.space import SPACES
 
 # Settings a campaign keeps in campaign.json; on --resume, flags given again override them.

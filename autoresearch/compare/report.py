@@ -21,6 +21,7 @@ from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormat
 from autoresearch.audit.report import LOG_SPAN
 from autoresearch.compare import stats as compare
 from autoresearch.compare.inputs import CompareError, RepeatedArm, common_family, noise_reference
+from autoresearch.direction import Direction
 from autoresearch.loop.campaign import portable_path
 
 BUDGET_TRIGGERS = ("max_iters", "max_runs", "wall_clock", "max_cost")
@@ -48,7 +49,7 @@ def analyse(
     n_resamples: int = compare.RESAMPLES,
 ) -> Analysis:
     family = common_family(arms)
-    direction = 1 if family["direction"] == "maximize" else -1
+    direction = Direction.of(family["direction"])
     longest = max(r.n for arm in arms for r in arm.repeats)
     if longest == 0:
         raise CompareError("no campaign has run an experiment yet")

@@ -12,6 +12,8 @@ import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from autoresearch.direction import Direction
+
 if TYPE_CHECKING:
     import optuna
 
@@ -36,12 +38,12 @@ def _curve(record: dict[str, Any]) -> dict[int, float]:
 class EarlyStopper:
     """Thread-safe: runs in flight report from their own supervising threads."""
 
-    def __init__(self, name: str, direction: str, records: list[dict[str, Any]] = ()):
+    def __init__(self, name: str, direction: Direction, records: list[dict[str, Any]] = ()):
         import optuna
 
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         self.name = name
-        self.study = optuna.create_study(direction=direction, pruner=make_pruner(name))
+        self.study = optuna.create_study(direction=direction.study, pruner=make_pruner(name))
         self._lock = threading.Lock()
         self._trials: dict[str, optuna.Trial] = {}
         for record in records:

@@ -150,8 +150,7 @@ class Orchestrator:
         self._cancel = threading.Event()  # set when the loop unwinds: every run in flight is killed
         self.stopper = None
         if self.settings.early_stop != "none":
-            direction = self.family.registry["direction"]
-            self.stopper = EarlyStopper(self.settings.early_stop, direction, self.state.records)
+            self.stopper = EarlyStopper(self.settings.early_stop, self.family.direction, self.state.records)
         self._elapsed_base, self._started = self.state.elapsed_s, time.monotonic()
         arm = self.settings.random_arm
         self.random_summary = summarize_random_arm(arm, self.family) if arm else None

@@ -38,9 +38,10 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
+from autoresearch import editable
 from autoresearch.family import SEARCH, TEST, Family
 from autoresearch.journal import read_json, read_jsonl, repair_torn_tail, write_json_atomic
-from autoresearch.loop import editable, tracking
+from autoresearch.loop import tracking
 from autoresearch.space import ValidationError, is_finite_number
 
 FINAL_METRIC_PREFIX = "FINAL_METRIC:"

@@ -47,6 +47,6 @@ class GPProposer(TPEProposer):
             independent_sampler=optuna.samplers.RandomSampler(seed=seed),
             warn_independent_sampling=False,
         )
-        study = optuna.create_study(direction=self.study_direction, sampler=sampler)
+        study = optuna.create_study(direction=self.direction.study, sampler=sampler)
         study.add_trials([*trials, *running])
         return self.space.validate_full(study.ask(self.distributions).params)

@@ -1,4 +1,4 @@
-"""The LLM proposers' command-line flags, and ``loop --dry-run``.
+"""The LLM proposers' command-line flags and the cost estimate ``loop --dry-run`` prints.
 
 The defaults keep a 50-iteration campaign cheap: Claude at ``--effort low`` (thinking dominates the
 output cost at the API's default high effort) with at most 8192 output tokens a call, prompt caching
@@ -9,11 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-from typing import TYPE_CHECKING, Any, TextIO
-
-if TYPE_CHECKING:
-    from autoresearch.loop.campaign import CampaignMeta
+from typing import Any
 
 # Settings kept in campaign.json (None: the proposer's default); flags given on --resume override them.
 LLM_DEFAULTS: dict[str, Any] = {
@@ -150,61 +146,3 @@ def _typical_run(context: Any) -> dict[str, Any]:
         "verdict": "improved",
         "auxiliary": {"wall_seconds": 12.3456, "train_loss": 0.123456},
     }
-
-
-def dry_run(meta: CampaignMeta, out: TextIO | None = None) -> int:
-    """Print the first request the proposer would send and the estimated cost of the campaign."""
-    out = out or sys.stdout
-    import anthropic
-    import openai
-
-    from autoresearch.family import resolve_family, search_view
-    from autoresearch.loop.campaign import CampaignState
-    from autoresearch.loop.context import build_context, shown_registry
-    from autoresearch.loop.stopping import Budgets, closest_trigger
-    from autoresearch.proposers import make_proposer
-
-    settings, name = meta.settings, meta.proposer
-    if name not in ("anthropic", "openai"):
-        raise ValueError(f"--dry-run shows an LLM's request; the {name!r} proposer sends none")
-    family = resolve_family(meta.family)
-    blind = settings["blind"]
-    client = (
-        anthropic.Anthropic(api_key="dry-run")
-        if name == "anthropic"
-        else openai.OpenAI(api_key="dry-run", base_url=settings["base_url"])
-    )
-    proposer = make_proposer(
-        name,
-        shown_registry(family.registry, blind),
-        seed=settings["seed"],
-        model=settings["model"],
-        base_url=settings["base_url"],
-        client=client,
-        **llm_kwargs(name, settings),
-    )
-    state = CampaignState.from_records(family, [])
-    budgets = Budgets(max_iters=settings["max_iters"], max_cost_usd=settings["max_cost_usd"])
-    context = build_context(
-        state,
-        registry=search_view(family.registry),
-        blind=blind,
-        extra_warnings=(f"Budget: {closest_trigger(state, budgets, 0.0, blind)}",),
-    )
-    body = proposer.request(context)
-    iterations = settings["max_iters"] or 50
-    cost = campaign_estimate(proposer, context, iterations)
-    print(json.dumps(body, indent=2), file=out)
-    print(
-        f"\n# dry run: {name} {proposer.model}; the request above is the first (before the baseline's run, "
-        f"which the real first call also shows); {len(json.dumps(body))} characters",
-        file=out,
-    )
-    print(
-        f"# estimated cost of {iterations} iterations: ${cost['typical_cached']:.2f} with prompt caching, "
-        f"${cost['typical_uncached']:.2f} without ({TYPICAL_OUTPUT_TOKENS} output tokens a call); at most "
-        f"${cost['worst']:.2f} (max_tokens={proposer.max_tokens} every call, no cache hit); "
-        f"spend cap ${settings['max_cost_usd']:g}",
-        file=out,
-    )
-    return 0

@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from autoresearch.direction import Direction
 from autoresearch.proposers.base import ProposerContext
 from autoresearch.proposers.tools import PROPOSE, STOP, safe_text
 
@@ -154,7 +155,7 @@ def _history_blocks(history: tuple[dict[str, Any], ...], metric: str) -> tuple[s
 
 def _best(context: ProposerContext, metric: str) -> dict[str, Any] | None:
     """The best run of the history: feasible first, then by the registry's direction."""
-    sign = -1 if context.registry.get("direction") == "minimize" else 1
+    sign = Direction.of(context.registry.get("direction", "maximize"))
     ran = [
         r
         for r in context.history

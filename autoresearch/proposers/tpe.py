@@ -37,6 +37,7 @@ import optuna
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import FrozenTrial, TrialState
 
+from autoresearch.direction import Direction
 from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, RunOutcome
 from autoresearch.proposers.random_search import MAX_DRAWS, full_config_proposal, seen_configs
 from autoresearch.space import ParamSpec, SearchSpace, canonical_key
@@ -69,7 +70,7 @@ class TPEProposer(Proposer):
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         self.family_space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
         self.space = self.family_space.searched(space)
-        self.study_direction = registry["direction"]
+        self.direction = Direction.of(registry["direction"])
         self.seed = seed
         self.n_startup_trials = n_startup_trials
         self.distributions = {name: _distribution(p) for name, p in self.space.params.items()}
@@ -95,7 +96,7 @@ class TPEProposer(Proposer):
         An outcome outside it (a baseline or enqueued run beyond a narrowed range) cannot be an
         Optuna trial of these distributions; it still sets the crash cost."""
         metrics = [o.metric for o in self.outcomes if o.metric is not None]
-        crash_cost = (max if self.study_direction == "minimize" else min)(metrics) if metrics else None
+        crash_cost = self.direction.worst(metrics) if metrics else None
         crash_constraints = self._constraints_of_failures()
         trials = []
         for outcome in self.outcomes:
@@ -130,7 +131,7 @@ class TPEProposer(Proposer):
             n_startup_trials=self.n_startup_trials,
             constant_liar=True,  # runs in flight are pending trials: TPE is steered away from them
         )
-        study = optuna.create_study(direction=self.study_direction, sampler=sampler)
+        study = optuna.create_study(direction=self.direction.study, sampler=sampler)
         study.add_trials([*trials, *running])
         return self.space.validate_full(study.ask(self.distributions).params)
 
