@@ -4,7 +4,7 @@ import difflib
 import pytest
 from loop_helpers import TOY_FAMILY
 
-from autoresearch.loop.editable import EditableError, patch, read_region
+from autoresearch.editable import EditableError, patch, read_region
 
 TOY_SOURCE = (TOY_FAMILY / "train.py").read_text()
 

@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 import cwh_envs
+from autoresearch.editable import read_region
 from autoresearch.family import Family
-from autoresearch.loop.editable import read_region
 from autoresearch.loop.runner import parse_progress
 
 ROOT = Path(__file__).resolve().parents[1]
