@@ -1,13 +1,17 @@
 """Env throughput: env-steps per second, single env vs SyncVectorEnv vs the native vector env.
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_envs.py [--seconds 2.0] [--safety]
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_envs.py [--seconds 2.0] [--start-pool 65536] [--safety]
 
 Random actions from a pre-drawn pool. Each measurement runs for at least ``--seconds`` and at least
 one full episode plus its reset, and reports env-steps per second (one transition of one
 sub-environment; a vector step of N envs is N env-steps) twice: including the resets, which draw
 screened starts from :mod:`cwh_envs.sampling` as in training, and stepping only (reset calls
 excluded from the clock), the env's own cost. Ratios are per env-step against SyncVectorEnv of 16
-single envs (of filtered single envs for the filtered rows). Prints a Markdown table.
+single envs (of filtered single envs for the filtered rows); "resets cost" is stepping only over
+incl. resets, the slowdown the resets bring (the aim for the pooled rows: at most 3x). The
+``start_pool=`` rows reset from a cached pool of ``--start-pool`` screened starts
+(cwh_envs.datasets.start_pool) instead of fresh draws; building it (once per machine, or loading
+it) happens before the clock starts and is reported on stderr. Prints a Markdown table.
 
 ``--safety`` instead measures what the CBF filter prevents: 512 docking episodes per row of a
 naive nominal policy (random thrust, or flying straight at the goal at a capped speed), with
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import platform
+import sys
 import time
 
 import gymnasium as gym
@@ -29,11 +34,12 @@ from cwh_envs.controllers import capped_speed_action
 
 SYNC_ENVS = 16
 NATIVE_ENVS = (1024, 8192)
+START_POOL = 65_536  # the start_pool rows: a pool built once per machine and cached
 
 
-def bench_single(env_id: str, seconds: float) -> tuple[float, float]:
+def bench_single(env_id: str, seconds: float, **kwargs) -> tuple[float, float]:
     """(env-steps/s with resets, env-steps/s stepping only) for one env made by gym.make."""
-    env = gym.make(env_id)
+    env = gym.make(env_id, **kwargs)
     env.reset(seed=0)
     pool = np.random.default_rng(0).uniform(-1, 1, (4096, 3)).astype(np.float32)
     steps, step_time, reset_time, resets = 0, 0.0, 0.0, 0
@@ -118,9 +124,21 @@ def safety_table() -> None:
             )
 
 
+def prepare_pool(env_id: str, size: int) -> None:
+    """Build (or load) the start pool outside every clock, and say how long it took."""
+    started = time.perf_counter()
+    gym.make_vec(env_id, num_envs=1, vectorization_mode="vector_entry_point", start_pool=size).reset(seed=0)
+    print(
+        f"[bench_envs] {env_id} start pool of {size}: ready in {time.perf_counter() - started:.1f} s",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=2.0, help="wall time per measurement")
+    parser.add_argument("--start-pool", type=int, default=START_POOL, help="pool size of the start_pool rows")
     parser.add_argument("--safety", action="store_true", help="measure the CBF filter's effect instead")
     args = parser.parse_args()
     if args.safety:
@@ -131,29 +149,50 @@ def main() -> None:
     )
     print()
     print(
-        "| env | configuration | env-steps/s incl. resets | vs Sync | env-steps/s stepping only | vs Sync |"
+        "| env | configuration | env-steps/s incl. resets | vs Sync | env-steps/s stepping only | vs Sync "
+        "| resets cost |"
     )
-    print("|---|---|---:|---:|---:|---:|")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    pool = {"start_pool": args.start_pool}
     for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v0"):
+        prepare_pool(env_id, args.start_pool)
         sync = bench_vector(env_id, SYNC_ENVS, "sync", args.seconds)
         rows = [
             ("single env, gym.make", bench_single(env_id, args.seconds), sync),
             (f"SyncVectorEnv x{SYNC_ENVS}", sync, sync),
+            (
+                f"SyncVectorEnv x{SYNC_ENVS}, start_pool={args.start_pool}",
+                bench_vector(env_id, SYNC_ENVS, "sync", args.seconds, **pool),
+                sync,
+            ),
         ]
         for n in NATIVE_ENVS:
             rows.append(
                 (f"native vector x{n}", bench_vector(env_id, n, "vector_entry_point", args.seconds), sync)
             )
+        for n in NATIVE_ENVS:
+            rate = bench_vector(env_id, n, "vector_entry_point", args.seconds, **pool)
+            rows.append((f"native vector x{n}, start_pool={args.start_pool}", rate, sync))
         if env_id == "CWHDockKOZ-v0":  # the filtered rows compare with SyncVectorEnv of filtered envs
             sync_cbf = bench_vector(env_id, SYNC_ENVS, "sync", args.seconds, wrappers=(CBFSafetyFilter,))
             rows.append((f"SyncVectorEnv x{SYNC_ENVS}, CBFSafetyFilter", sync_cbf, sync_cbf))
             for n in NATIVE_ENVS:
                 rate = bench_vector(env_id, n, "vector_entry_point", args.seconds, cbf_margin=0.5)
                 rows.append((f"native vector x{n}, cbf_margin=0.5", rate, sync_cbf))
+            rate = bench_vector(
+                env_id, NATIVE_ENVS[0], "vector_entry_point", args.seconds, cbf_margin=0.5, **pool
+            )
+            rows.append(
+                (
+                    f"native vector x{NATIVE_ENVS[0]}, cbf_margin=0.5, start_pool={args.start_pool}",
+                    rate,
+                    sync_cbf,
+                )
+            )
         for name, (total, stepping), (base_total, base_stepping) in rows:
             print(
                 f"| {env_id} | {name} | {total:,.0f} | {total / base_total:.0f}x "
-                f"| {stepping:,.0f} | {stepping / base_stepping:.0f}x |",
+                f"| {stepping:,.0f} | {stepping / base_stepping:.0f}x | {stepping / total:.1f}x |",
                 flush=True,
             )
 

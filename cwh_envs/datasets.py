@@ -17,11 +17,17 @@ candidate stream; ``cwh_envs.prepare`` checks it against the recovery pool a fam
 
 The search split (128 starts by default) is what a research loop selects on; the test split (1024
 by default) is for certifying what it selected, never for choosing (docs/audit.md).
+
+:func:`start_pool` (stream 4, entropy 0) is a fixed set of screened starts the envs can draw their
+resets from (``start_pool=`` of the env constructors): built once per (task, size, problem), cached
+here and in memory.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import itertools
 import json
 import os
 import sys
@@ -50,6 +56,7 @@ EVAL_CHECK_SEEDS = 32  # training seeds whose candidate streams the evaluation s
 EVAL_CHECK_CANDIDATES = 16384  # candidates per seed checked: ~4x what 256 docking demos consume
 DEFAULT_RECOVERY_NOISE = (1.0, 0.005)  # (m, m/s) std of the perturbation added to an expert state
 _TRAIN_STREAM, _RECOVERY_STREAM = 0, 1
+_POOL_STREAM = 4  # the envs' start pools (after the two evaluation splits' 2 and 3)
 SPLITS = ("search", "test")  # the evaluation splits: selected on, and sealed for certification
 _SPLIT_STREAM = {"search": 2, "test": 3}
 DEFAULT_EVAL_SIZE = {"search": 128, "test": 1024}
@@ -104,6 +111,18 @@ class Demonstrations:
             self.starts[:n_episodes],
             self.goals[:n_episodes],
         )
+
+
+@dataclass(frozen=True)
+class StartPool:
+    """A fixed set of screened starts: ``starts`` (n, 6) [m, m/s] and ``goals`` (n, 3) [m] (zeros for
+    rendezvous), read-only arrays shared by every env that draws from it."""
+
+    starts: np.ndarray
+    goals: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.starts)
 
 
 class CacheMiss(LookupError):
@@ -211,6 +230,56 @@ def recovery_demonstrations(
         return _build_recovery(task, n, sources, _rng(_RECOVERY_STREAM, task, seed), problem, noise)
 
     return _cached(cache_dir, key, build_recovery, build)
+
+
+def start_pool(task: str, n: int, problem=None, cache_dir=None, *, build: bool = True) -> StartPool:
+    """``n`` screened starts for ``task``, drawn once from a fixed stream (the sampler the envs reset
+    with), cached on disk and in memory.
+
+    Resetting from a pool replaces fresh i.i.d. screened draws by draws with replacement from these
+    ``n`` (one i.i.d. sample of the same screened distribution): resets cost an index draw instead of
+    a screen. Pools are nested in ``n`` (the first k starts do not depend on n) and come from their
+    own random stream, so they are disjoint from the training, recovery and evaluation streams by
+    construction.
+    """
+    problem = _problem(task, problem)
+    n = check_pool_size(n)
+    key = _cache_key("start_pool", task, problem, n=n)
+    memo = (json.dumps(key, sort_keys=True), str(cache_directory(cache_dir)))
+    if memo not in _POOLS:
+
+        def build_pool() -> StartPool:
+            rng = _rng(_POOL_STREAM, task, 0)
+            progress = _Progress(f"{task} start pool", n)
+            if task == "rendezvous":  # the starts of sample_rendezvous_starts, without keeping n trajectories
+                drawn = itertools.islice(sampling.iter_rendezvous(rng, problem), n)
+                starts, goals = np.array([start for start, _, _ in drawn]), np.zeros((n, 3))
+            else:
+                starts, goals = sampling.sample_docking_starts(rng, n, problem)
+            progress.update(n)
+            progress.close()
+            return StartPool(starts, goals)
+
+        pool = _cached(cache_dir, key, build_pool, build, StartPool)
+        for array in (pool.starts, pool.goals):
+            array.setflags(write=False)  # shared by every env drawing from it
+        while len(_POOLS) >= _POOLS_KEPT:
+            del _POOLS[next(iter(_POOLS))]  # the oldest
+        _POOLS[memo] = pool
+    return _POOLS[memo]
+
+
+_POOLS: dict[tuple[str, str], StartPool] = {}  # (cache key, cache directory) -> the pool, per process
+_POOLS_KEPT = 8
+
+
+def check_pool_size(n) -> int:
+    """``n`` as the size of a start pool, or a ``ValueError`` that says what a size must be."""
+    if not (isinstance(n, int | np.integer) and not isinstance(n, bool) and n >= 1):
+        raise ValueError(
+            f"start_pool must be None or a positive integer (the number of pooled starts), got {n!r}"
+        )
+    return int(n)
 
 
 def cache_directory(cache_dir=None) -> Path:
@@ -326,11 +395,13 @@ def _check_disjoint(task: str, held_out: np.ndarray, problem, streams: dict[str,
 # ---------------------------------------------------------------------------------------- cache
 
 
-def _cached(cache_dir, key: dict, build, build_missing: bool) -> Demonstrations:
+def _cached(cache_dir, key: dict, build, build_missing: bool, kind: type = Demonstrations):
+    """``kind`` (a dataclass of arrays) from the cache file named by ``key``, else built and stored."""
     text = json.dumps(key, sort_keys=True)
     digest = hashlib.sha256(text.encode()).hexdigest()[:20]
     path = cache_directory(cache_dir) / f"{key['kind']}-{key['task']}-{digest}.npz"
-    loaded = _load(path, text)
+    names = [field.name for field in dataclasses.fields(kind)]
+    loaded = _load(path, text, kind, names)
     if loaded is not None:
         return loaded
     if not build_missing:
@@ -340,22 +411,22 @@ def _cached(cache_dir, key: dict, build, build_missing: bool) -> Demonstrations:
     with tempfile.NamedTemporaryFile(
         dir=path.parent, prefix=path.stem, suffix=".tmp", delete=False
     ) as handle:
-        np.savez(handle, key=np.array(text), **{name: getattr(result, name) for name in _FIELDS})
+        np.savez(handle, key=np.array(text), **{name: getattr(result, name) for name in names})
     os.replace(handle.name, path)
     return result
 
 
-_FIELDS = ("observations", "actions", "episode", "starts", "goals")
+_FIELDS = tuple(field.name for field in dataclasses.fields(Demonstrations))
 
 
-def _load(path: Path, text: str) -> Demonstrations | None:
+def _load(path: Path, text: str, kind: type, names: list[str]):
     if not path.exists():
         return None
     try:
         with np.load(path, allow_pickle=False) as stored:
             if str(stored["key"]) != text:
                 return None
-            return Demonstrations(*(stored[name] for name in _FIELDS))
+            return kind(*(stored[name] for name in names))
     except (OSError, ValueError, KeyError):
         return None  # unreadable or foreign file: rebuild and overwrite it
 

@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from cwh_envs.core import CWHEnv, DockingCore, check_goals, check_states
+from cwh_envs.datasets import check_pool_size, start_pool
 from cwh_envs.sampling import sample_docking_start
 
 
@@ -61,6 +62,11 @@ class CWHDockKOZEnv(CWHEnv):
     (so it binds) and fits the thrust box. ``reset(options={"initial_state": x0, "goal": g})`` sets
     either or both; a missing one comes from the same draw.
 
+    ``start_pool=P`` draws ``(x0, g)`` instead from a fixed pool of ``P`` such screened pairs
+    (:func:`cwh_envs.datasets.start_pool`, built once and cached), uniformly with replacement by
+    ``self.np_random.integers(P)``: the empirical distribution of ``P`` screened draws rather than
+    fresh ones, at the cost of an index draw instead of a screen.
+
     ## Episode End
 
     ``terminated=True`` at ``k = H``, ``truncated`` always ``False`` (see ``CWHRendezvous-v0``: the
@@ -91,12 +97,18 @@ class CWHDockKOZEnv(CWHEnv):
     Every :class:`cwh_envs.problems.DockingProblem` field (``n, dt, mass, discretization, horizon,
     u_max, koz_radius, goal_radius, margin, start_distance, success_distance, success_speed`` and
     the sampler's ``start_cone_deg, velocity_box, pierce_depth``), the reward weights ``progress_weight=0.1, effort_weight=0.01, terminal_weight=0.1,
-    success_bonus=10.0, koz_weight=1.0`` and ``render_mode`` (``None`` or ``"rgb_array"``).
+    success_bonus=10.0, koz_weight=1.0``, ``start_pool`` (``None``: fresh draws, the default; or a
+    pool size) and ``render_mode`` (``None`` or ``"rgb_array"``).
     ``self.problem``, ``self.state`` (the (6,) SI state) and ``self.goal`` are public.
     """
 
     core_cls: ClassVar[type] = DockingCore
     reset_options: ClassVar[tuple[str, ...]] = ("initial_state", "goal")
+
+    def __init__(self, render_mode: str | None = None, start_pool: int | None = None, **kwargs: Any) -> None:
+        pool_size = None if start_pool is None else check_pool_size(start_pool)
+        super().__init__(render_mode, **kwargs)
+        self.start_pool = pool_size
 
     @property
     def goal(self) -> np.ndarray:
@@ -107,7 +119,12 @@ class CWHDockKOZEnv(CWHEnv):
         state = check_states(options["initial_state"]) if "initial_state" in options else None
         goal = check_goals(options["goal"], self.problem) if "goal" in options else None
         if state is None or goal is None:
-            sampled_state, sampled_goal = sample_docking_start(self.np_random, self.problem)
+            if self.start_pool is None:
+                sampled_state, sampled_goal = sample_docking_start(self.np_random, self.problem)
+            else:  # the same draw as a row of the vector env (cwh_envs.vector)
+                pool = start_pool("docking", self.start_pool, self.problem)
+                drawn = self.np_random.integers(len(pool))
+                sampled_state, sampled_goal = pool.starts[drawn], pool.goals[drawn]
             state = np.asarray(sampled_state, dtype=np.float64) if state is None else state
             goal = np.asarray(sampled_goal, dtype=np.float64) if goal is None else goal
         return state, goal

@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from cwh_envs.core import CWHEnv, RendezvousCore, check_states
+from cwh_envs.datasets import check_pool_size, start_pool
 from cwh_envs.sampling import sample_rendezvous_start
 
 
@@ -69,6 +70,11 @@ class CWHRendezvousEnv(CWHEnv):
     optimal-control expert reaches the origin. ``reset(options={"initial_state": x0})`` starts from a
     given 6-vector instead.
 
+    ``start_pool=P`` draws each start instead from a fixed pool of ``P`` such screened starts
+    (:func:`cwh_envs.datasets.start_pool`, built once and cached), uniformly with replacement by
+    ``self.np_random.integers(P)``: a reset then costs an index draw, not an expert solve, and the
+    starts are the empirical distribution of ``P`` screened draws rather than fresh ones.
+
     ## Episode End
 
     The episode has a fixed length: ``terminated=True`` at ``k = H`` and ``truncated`` is always
@@ -92,9 +98,9 @@ class CWHRendezvousEnv(CWHEnv):
     Every :class:`cwh_envs.problems.RendezvousProblem` field (``n, dt, mass, discretization,
     horizon, u_max, position_box, velocity_box, success_distance, success_speed,
     reach_tolerance``), the reward weights ``progress_weight=0.1, effort_weight=0.01,
-    terminal_weight=1.0, success_bonus=10.0`` and ``render_mode`` (``None`` or ``"rgb_array"``: an
-    image of the trajectory so far in three projections). Invalid values raise ``ValueError``,
-    unknown names ``TypeError``::
+    terminal_weight=1.0, success_bonus=10.0``, ``start_pool`` (``None``: fresh draws, the default; or
+    a pool size) and ``render_mode`` (``None`` or ``"rgb_array"``: an image of the trajectory so far
+    in three projections). Invalid values raise ``ValueError``, unknown names ``TypeError``::
 
         import gymnasium as gym
         env = gym.make("cwh_envs:CWHRendezvous-v0", discretization="exact")
@@ -107,7 +113,15 @@ class CWHRendezvousEnv(CWHEnv):
     core_cls: ClassVar[type] = RendezvousCore
     reset_options: ClassVar[tuple[str, ...]] = ("initial_state",)
 
+    def __init__(self, render_mode: str | None = None, start_pool: int | None = None, **kwargs: Any) -> None:
+        pool_size = None if start_pool is None else check_pool_size(start_pool)
+        super().__init__(render_mode, **kwargs)
+        self.start_pool = pool_size
+
     def _initial(self, options: dict[str, Any]) -> tuple[np.ndarray, None]:
         if "initial_state" in options:
             return check_states(options["initial_state"]), None
+        if self.start_pool is not None:  # the same draw as a row of the vector env (cwh_envs.vector)
+            pool = start_pool("rendezvous", self.start_pool, self.problem)
+            return np.array(pool.starts[self.np_random.integers(len(pool))]), None
         return np.asarray(sample_rendezvous_start(self.np_random, self.problem), dtype=np.float64), None

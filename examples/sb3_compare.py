@@ -11,6 +11,13 @@ code), a behaviour-cloned policy from a family run, and a hand-written PD law (n
 
     .venv/bin/python examples/sb3_compare.py --smoke     # under a minute: plumbing only, not a result
     .venv/bin/python examples/sb3_compare.py             # the run in docs/examples.md (~15-20 min, 2 cores)
+    .venv/bin/python examples/sb3_compare.py --vec-env dummy   # the same learning on DummyVecEnv, slower
+
+SB3 trains on the native vector env through cwh_envs.sb3.NativeVecEnv (``--vec-env native``, the
+default) or on make_vec_env's DummyVecEnv of single envs (``--vec-env dummy``). Both reset from the
+same cached pool of screened starts (``--start-pool``) with the same per-env seeding, so for one
+seed they learn exactly the same policy (the tests check it); only the wall-clock differs.
+``--start-pool 0`` draws fresh starts instead, which the two paths draw differently.
 
 Writes results.md (the table, also printed), results.json, metric_vs_wallclock.png and the SB3
 models (models/) to --out.
@@ -33,13 +40,14 @@ from matplotlib.figure import Figure
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.vec_env import VecNormalize
+from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 from torch import nn
 
 from cwh_envs import CBFSafetyFilter
 from cwh_envs.controllers import pd_action
 from cwh_envs.datasets import evaluation_set
 from cwh_envs.experts import solve_docking, solve_rendezvous
+from cwh_envs.sb3 import NativeVecEnv
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,10 +77,28 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument(
         "--tensorboard", default=None, metavar="DIR", help="TensorBoard log dir (if installed)"
     )
+    parser.add_argument(
+        "--vec-env",
+        choices=["native", "dummy"],
+        default="native",
+        help="native: cwh_envs.sb3.NativeVecEnv over the native vector env; dummy: make_vec_env's DummyVecEnv",
+    )
+    parser.add_argument(
+        "--start-pool",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"reset from a cached pool of N screened starts (default {START_POOL}, --smoke {SMOKE_POOL}); "
+        "0: fresh draws",
+    )
     parser.add_argument("--smoke", action="store_true", help="512 steps, shrunken rollouts: a plumbing check")
     args = parser.parse_args()
     if args.smoke:
         args.timesteps = args.sac_timesteps = 512
+    if args.start_pool is None:
+        args.start_pool = SMOKE_POOL if args.smoke else START_POOL
+    if args.start_pool < 0:
+        parser.error("--start-pool must be >= 0")
     if args.tensorboard is not None and importlib.util.find_spec("tensorboard") is None:
         print("[tensorboard] not installed (pip install tensorboard): no TensorBoard logs")
         args.tensorboard = None
@@ -173,6 +199,10 @@ SMOKE = {
 }
 ALGOS = {"ppo": PPO, "sac": SAC}
 FLOOR = 1e-3  # the plot's lowest metric value
+# The training envs reset from a fixed pool of screened starts, drawn once and cached on disk
+# (cwh_envs.datasets.start_pool): 35x the ~1,900 episodes of a 150k-step rendezvous run, so few
+# starts repeat; a smoke run builds a small one.
+START_POOL, SMOKE_POOL = 65_536, 1_024
 
 
 def load_family(name: str):
@@ -267,13 +297,7 @@ class MetricCurve(BaseCallback):
 def train_sb3(algo: str, problem: dict, family, evaluate: EvalSet, args) -> dict:
     params = {**HYPERPARAMS[algo][problem["family"]], **(SMOKE[algo] if args.smoke else {})}
     n_envs, normalize = params.pop("n_envs"), params.pop("normalize")
-    envs = make_vec_env(
-        problem["env_id"],
-        n_envs=n_envs,
-        seed=args.seed,
-        wrapper_class=CBFSafetyFilter if problem["cbf"] else None,
-    )
-    envs = VecNormalize(envs, gamma=params["gamma"], **normalize)
+    envs = VecNormalize(training_envs(problem, family, n_envs, args), gamma=params["gamma"], **normalize)
     model = ALGOS[algo]("MlpPolicy", envs, seed=args.seed, tensorboard_log=args.tensorboard, **params)
     timesteps = args.sac_timesteps if algo == "sac" else args.timesteps
     every = max(1, timesteps // args.eval_points)
@@ -289,6 +313,21 @@ def train_sb3(algo: str, problem: dict, family, evaluate: EvalSet, args) -> dict
         "metrics": metrics,
         "curve": curve.points,
     }
+
+
+def training_envs(problem: dict, family, n_envs: int, args):
+    """The monitored SB3 VecEnv of ``n_envs`` training envs; with the CBF for docking+cbf (the
+    family's margin, as CBFSafetyFilter's default)."""
+    pool = {"start_pool": args.start_pool} if args.start_pool else {}
+    if args.vec_env == "dummy":
+        wrapper = CBFSafetyFilter if problem["cbf"] else None
+        return make_vec_env(
+            problem["env_id"], n_envs=n_envs, seed=args.seed, env_kwargs=pool, wrapper_class=wrapper
+        )
+    cbf = {"cbf_margin": family.PROBLEM.margin} if problem["cbf"] else {}
+    # SB3's algorithms read only is_success (and the terminal observation) from the infos.
+    envs = NativeVecEnv(problem["env_id"], n_envs, seed=args.seed, info_keys=("is_success",), **pool, **cbf)
+    return VecMonitor(envs)
 
 
 def expert(family, evaluate: EvalSet) -> dict:
@@ -427,10 +466,13 @@ def main() -> None:
         + f"; its own FINAL_METRIC {families[name].METRIC} = {saved['record'][families[name].METRIC]:.4g}."
         for name, (_, saved, provenance) in bc.items()
     ]
+    vec_env = "cwh_envs.sb3.NativeVecEnv (native vector env)" if args.vec_env == "native" else "DummyVecEnv"
+    starts = f"a pool of {args.start_pool} screened starts" if args.start_pool else "fresh screened draws"
     notes += [
         f"SB3 {stable_baselines3.__version__}, seed {args.seed}"
         + (" (--smoke: shrunken rollouts, not a result)" if args.smoke else "")
         + "; wall-clock = model.learn minus the metric evaluations along the way, torch on 1 thread.",
+        f"SB3 trained on {vec_env}; training resets from {starts}.",
         "BC wall-clock = the family's train_seconds (gradient steps only; its expert demonstrations come "
         "from the dataset cache). Expert wall-clock = solving the 128 held-out starts.",
         "Every row is scored by the family train.py's own fly/evaluate and metric on its 128 held-out "

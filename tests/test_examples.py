@@ -174,6 +174,37 @@ def test_sb3_compare_smoke(tmp_path, bc_policies):
         )
 
 
+@pytest.mark.slow
+def test_sb3_compare_learns_the_same_on_the_native_adapter_and_on_dummy_vec_env(tmp_path, bc_policies):
+    """Same seeds, same start pool: the adapter and DummyVecEnv give SB3 identical transitions, so
+    PPO and SAC end with identical policies, to the last bit of the family metric."""
+    rows = {}
+    for vec_env in ("native", "dummy"):
+        out = tmp_path / vec_env
+        run(
+            "sb3_compare.py",
+            "--smoke",
+            "--eval-points",
+            1,
+            "--problems",
+            "docking+cbf",
+            "--vec-env",
+            vec_env,
+            f"--bc-policy=docking={bc_policies['docking']}",
+            "--out",
+            out,
+            cwd=tmp_path,
+        )
+        results = json.loads((out / "results.json").read_text())
+        rows[vec_env] = {row["method"]: row["metrics"] for row in results if row["method"] in ("PPO", "SAC")}
+        assert (
+            f"SB3 trained on {'cwh_envs.sb3.NativeVecEnv' if vec_env == 'native' else 'DummyVecEnv'}"
+            in (out / "results.md").read_text()
+        )
+    assert set(rows["native"]) == {"PPO", "SAC"}
+    assert rows["native"] == rows["dummy"]
+
+
 @pytest.fixture
 def one_torch_thread():
     """As sb3_compare runs torch: two threads on two busy cores make these tiny nets ~10x slower."""
