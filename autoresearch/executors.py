@@ -178,7 +178,7 @@ class RayExecutor(Executor):
 @contextmanager
 def keeping_signal_handlers() -> Iterator[None]:
     """Restore the SIGINT/SIGTERM handlers after the block: ray.init installs its own SIGTERM handler
-    (exit status 15), which would replace ours (runner.interruptible_runs: stop the runs, exit 130)."""
+    (exit status 15), which would replace ours (processes.interruptible_runs: stop the runs, exit 130)."""
     saved = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield

@@ -197,8 +197,8 @@ def _check_registry(registry: Any, where: Path) -> SearchSpace:
         space.validate_full(baseline["config"])
     except ValidationError as err:
         raise bad("baseline.config", f"is not a point of the search space: {err}") from None
-    if "metric" in baseline and not _number(baseline["metric"]):
-        raise bad("baseline.metric", "must be a finite number")
+    if baseline.get("metric") is not None and not _number(baseline["metric"]):
+        raise bad("baseline.metric", "must be a finite number or null")
     noise = registry.get("seed_noise")
     if noise is not None and not (
         isinstance(noise, dict) and _number(noise.get("std")) and noise["std"] >= 0
@@ -246,15 +246,13 @@ def _check_train_py(source: str, registry: dict[str, Any], space: SearchSpace, w
 
 def search_view(registry: dict[str, Any]) -> dict[str, Any]:
     """A copy of a family.json registry holding no number measured on the sealed test split: the
-    seed noise without its ``test`` part and no audited family ``best`` (certified on that split);
-    a campaign copy's running best stays. What a campaign copies and every proposer is shown, so
-    the search never sees what certifies it."""
+    seed noise without its ``test`` part and no audited family ``best`` (certified on that split;
+    a campaign copy's own running best, ``campaign_best``, is a search value and stays). What a
+    campaign copies and every proposer is shown, so the search never sees what certifies it."""
     view = json.loads(json.dumps(registry))
     if isinstance(view.get("seed_noise"), dict):
         view["seed_noise"].pop(TEST, None)
-    best = view.get("best")
-    if not (isinstance(best, dict) and str(best.get("source", "")).startswith("loop:")):
-        view["best"] = None  # a campaign copy's own running best ("loop:<run_id>") is a search value
+    view.pop("best", None)
     return view
 
 

@@ -36,11 +36,13 @@ from bench_envs import NATIVE_ENVS, SYNC_ENVS, bench_single, bench_vector
 from bench_experts_cbf import cbf_measure, docking_expert_run, rendezvous_expert_time
 from bench_loop_parallel import campaign_wall
 
+from autoresearch.audit.auditjson import read_audit
+from autoresearch.campaign import BASELINE_PROPOSER, Campaign, Status
 from autoresearch.compare.inputs import common_family, load_arms, noise_reference, read_repeat
 from autoresearch.compare.stats import best_so_far, experiments_to_target, median_experiments_to_target
+from autoresearch.direction import Direction
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.campaign import BASELINE_PROPOSER
 from autoresearch.loop.runner import run_experiment
 from autoresearch.proposers import DEFAULT_SPACE
 
@@ -209,10 +211,10 @@ def experiment_rows(tuned: bool, where: Path, progress: Progress) -> list[Row]:
 
 def loop_row(iterations: int, where: Path) -> Row:
     """The loop's own time per experiment: its clock minus its runs' wall times, key-free proposer."""
-    records = read_jsonl(make_campaign(where, iterations) / "proposals.jsonl")
-    runs = [r for r in records if r["status"] in ("ran", "failed")]
-    loop_s = records[-1]["elapsed_s"]  # the orchestrator's own clock at its last record
-    run_s = sum(r["wall_seconds"] for r in runs)
+    records = Campaign(make_campaign(where, iterations)).records()
+    runs = [r for r in records if r.status in (Status.RAN, Status.FAILED)]
+    loop_s = records[-1].elapsed_s  # the orchestrator's own clock at its last record
+    run_s = sum(r.wall_seconds for r in runs)
     return (
         "orchestrator overhead per iteration (no training, no LLM)",
         f"{1e3 * (loop_s - run_s) / len(runs):.0f} ms",
@@ -259,14 +261,10 @@ def parallel_row(measure: bool, where: Path) -> Row:
 
 def _search_cost(root: Path, direction: int) -> tuple[int, float, float | None, int]:
     """(experiments, run-seconds, best finished metric, finished runs) of a committed campaign."""
-    runs = [
-        r
-        for r in read_jsonl(root / "proposals.jsonl")
-        if r["status"] in ("ran", "failed", "pruned") and r["proposer"] != BASELINE_PROPOSER
-    ]
-    finished = [r["metric"] for r in runs if r["status"] == "ran"]
+    runs = [r for r in Campaign(root).started() if r.proposer != BASELINE_PROPOSER]
+    finished = [r.metric for r in runs if r.ran]
     best = max(finished, key=lambda m: direction * m) if finished else None
-    return len(runs), sum(r["wall_seconds"] or 0.0 for r in runs), best, len(finished)
+    return len(runs), sum(r.wall_seconds or 0.0 for r in runs), best, len(finished)
 
 
 def early_stop_rows() -> list[Row]:
@@ -278,9 +276,8 @@ def early_stop_rows() -> list[Row]:
         if not (ROOT / with_ / "proposals.jsonl").is_file():
             rows.append((what, "not run", "", f"needs {with_} (results/early_stop/)"))
             continue
-        registry = read_json(ROOT / without / "family.json")
-        direction = 1 if registry["direction"] == "maximize" else -1
-        stop = read_json(ROOT / with_ / "campaign.json")["settings"]["early_stop"]
+        direction = Direction.of(Campaign(ROOT / without).registry()["direction"])
+        stop = Campaign(ROOT / with_).meta().settings["early_stop"]
         (n0, s0, best0, done0), (n1, s1, best1, done1) = (
             _search_cost(ROOT / d, direction) for d in (without, with_)
         )
@@ -322,9 +319,9 @@ def evidence_rows() -> list[Row]:
         if not (root / "proposals.jsonl").is_file():
             rows.append((f"key-free evidence campaign {root.name}", "not run", "", f"needs {where}"))
             continue
-        meta, run = read_json(root / "campaign.json"), read_repeat(root)
-        registry, settings, target = run.registry, meta["settings"], run.registry["target"]
-        direction = 1 if registry["direction"] == "maximize" else -1
+        meta, run = Campaign(root).meta(), read_repeat(root)
+        registry, settings, target = run.registry, meta.settings, run.registry["target"]
+        direction = Direction.of(registry["direction"])
         best = best_so_far(run.metrics, run.feasible, direction, run.n)
         (hit,) = experiments_to_target(best[None, :], target, direction)
         measured = (
@@ -332,7 +329,7 @@ def evidence_rows() -> list[Row]:
             if hit
             else f"target {target:g} not reached in {run.n} experiments, {run.elapsed[-1]:.0f} s"
         )
-        audit = read_json(root / "audit.json") if (root / "audit.json").is_file() else {}
+        audit = read_audit(root)
         reseeded = [
             c for c in (audit.get("verify") or {}).get("candidates", []) if c.get("sigma_r") is not None
         ]
@@ -373,7 +370,7 @@ def compare_rows() -> list[Row]:
             continue
         arms = load_arms([(g.name.removeprefix(prefix + "-"), [g]) for g in groups])
         registry = common_family(arms)
-        direction = 1 if registry["direction"] == "maximize" else -1
+        direction = Direction.of(registry["direction"])
         budget = max(r.n for arm in arms for r in arm.repeats)  # as compare: a stopped repeat keeps its best
         noise = noise_reference(arms, None)
         targets = [("target", registry["target"])]

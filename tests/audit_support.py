@@ -8,8 +8,8 @@ from pathlib import Path
 
 from loop_helpers import TOY_FAMILY, ScriptedProposer
 
+from autoresearch.campaign import CampaignMeta
 from autoresearch.family import Family
-from autoresearch.loop.campaign import CampaignMeta
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.base import Proposer

@@ -11,27 +11,26 @@ from loop_helpers import TOY_FAMILY
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import run_all
 
+from autoresearch.campaign import Campaign, CampaignMeta, Record, Status
+
 
 def make_group(root: Path, proposer: str, space: str | None, repeats: list[list[float | None]]) -> None:
-    """A group of repeats whose campaigns ran these metrics (None: a failed run), toy family (minimize)."""
+    """A group of repeats whose campaigns ran these metrics (None: a failed run), toy family (minimize),
+    written through the campaign store."""
     registry = {**json.loads((TOY_FAMILY / "family.json").read_text()), "target": 0.5}
     registry["seed_noise"] = {"mean": 1.0, "std": 0.1}
     settings = {"space": space} if space else {}
     root.mkdir(parents=True)
     (root / "repeats.json").write_text(json.dumps({"proposer": proposer, "settings": settings}))
     for i, metrics in enumerate(repeats):
-        campaign = root / f"repeat-{i:02d}"
-        campaign.mkdir()
-        (campaign / "campaign.json").write_text(json.dumps({"proposer": proposer, "settings": settings}))
-        (campaign / "family.json").write_text(json.dumps(registry))
-        records = [
-            {"status": "failed", "metric": None, "feasible": None, "elapsed_s": it, "trigger": None}
-            if m is None
-            else {"status": "ran", "metric": m, "feasible": True, "elapsed_s": it, "trigger": None}
-            for it, m in enumerate(metrics, start=1)
-        ]
-        records.append({"status": "stopped", "trigger": "max_iters", "metric": None, "elapsed_s": 9.0})
-        (campaign / "proposals.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+        store = Campaign(root / f"repeat-{i:02d}")
+        store.root.mkdir()
+        CampaignMeta(str(TOY_FAMILY), registry["name"], proposer, settings, "2025-01-01").write(store.root)
+        store.write_registry(registry)
+        for it, m in enumerate(metrics, start=1):
+            status = Status.FAILED if m is None else Status.RAN
+            store.append(Record(it, status, metric=m, feasible=None if m is None else True, elapsed_s=it))
+        store.append(Record(len(metrics) + 1, Status.STOPPED, trigger="max_iters", elapsed_s=9.0))
 
 
 def test_experiments_to_target_per_arm_with_the_space_each_searched(tmp_path, monkeypatch):
@@ -66,26 +65,29 @@ def test_arms_over_different_spaces_are_flagged(tmp_path, monkeypatch):
 def make_campaign(root: Path, runs: list[tuple[str, float | None, float]], early_stop: str = "none") -> None:
     """A campaign of (status, metric, wall seconds) runs after a baseline, toy family (minimize)."""
     root.mkdir(parents=True)
-    (root / "family.json").write_text((TOY_FAMILY / "family.json").read_text())
-    (root / "campaign.json").write_text(json.dumps({"settings": {"early_stop": early_stop}}))
-    baseline = {"proposer": "baseline", "status": "ran", "metric": 9.0, "wall_seconds": 100.0}
-    records = [baseline] + [
-        {"proposer": "tpe", "status": status, "metric": metric, "wall_seconds": wall}
-        for status, metric, wall in runs
-    ]
-    records.append({"proposer": "tpe", "status": "stopped", "metric": None, "wall_seconds": None})
-    (root / "proposals.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    registry = json.loads((TOY_FAMILY / "family.json").read_text())
+    CampaignMeta(str(TOY_FAMILY), registry["name"], "tpe", {"early_stop": early_stop}, "2025-01-01").write(
+        root
+    )
+    store = Campaign(root)
+    store.write_registry(registry)
+    store.append(Record(1, Status.RAN, proposer="baseline", metric=9.0, wall_seconds=100.0))
+    for it, (status, metric, wall) in enumerate(runs, start=2):
+        store.append(Record(it, Status(status), proposer="tpe", metric=metric, wall_seconds=wall))
+    store.append(Record(len(runs) + 2, Status.STOPPED, proposer="tpe"))
 
 
 def test_early_stop_row_compares_run_seconds_per_experiment_and_best(tmp_path, monkeypatch):
     make_campaign(tmp_path / "none", [("ran", 0.5, 80.0), ("failed", None, 150.0), ("ran", 0.4, 70.0)])
     make_campaign(
-        tmp_path / "asha", [("pruned", None, 10.0), ("ran", 0.6, 40.0), ("pruned", None, 10.0)], "asha"
+        tmp_path / "asha",
+        [("early_stopped", None, 10.0), ("ran", 0.6, 40.0), ("early_stopped", None, 10.0)],
+        "asha",
     )
     monkeypatch.setattr(run_all, "ROOT", tmp_path)
     monkeypatch.setattr(run_all, "EARLY_STOP_PAIRS", [("toy", "none", "asha"), ("missing", "none", "nope")])
     row, missing = run_all.early_stop_rows()
-    # 60 / 3 = 20 s against 300 / 3 = 100 s (the baseline left out); a pruned run is never best.
+    # 60 / 3 = 20 s against 300 / 3 = 100 s (the baseline left out); a stopped run is never best.
     assert row[0].endswith("asha vs none") and row[1] == "20.0 s vs 100.0 s" and row[2] == "0.20x"
     assert row[3].startswith("best 0.6 vs 0.4; runs finished 1/3 vs 2/3")
     assert missing[1] == "not run"

@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 from loop_helpers import copy_toy
 
+from autoresearch.campaign import CampaignError
 from autoresearch.cli import main
 from autoresearch.journal import read_jsonl
-from autoresearch.loop.campaign import CampaignError
 from autoresearch.loop.campaign_lock import LOCK_FILE, CampaignBusy, CampaignLock, holder
 
 

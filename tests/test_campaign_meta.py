@@ -12,10 +12,10 @@ from loop_helpers import copy_toy
 
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.random_arm import run_random_arm
+from autoresearch.campaign import CampaignError, CampaignMeta, portable_path
 from autoresearch.cli import main
 from autoresearch.executors import LocalExecutor
 from autoresearch.journal import read_json
-from autoresearch.loop.campaign import CampaignError, CampaignMeta, portable_path
 
 KEYS = {"family", "family_name", "proposer", "settings", "created", "sessions", "family_dir"}
 

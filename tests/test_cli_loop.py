@@ -6,6 +6,7 @@ import sys
 import pytest
 from loop_helpers import copy_toy
 
+from autoresearch.campaign import Record, Status
 from autoresearch.cli import main
 from autoresearch.journal import read_json, read_jsonl
 from autoresearch.loop.live import PlainView, RichView
@@ -163,43 +164,29 @@ def test_resume_of_a_finished_campaign(toy, tmp_path, capsys):
 
 def test_views_render_every_kind_of_record():
     records = [
-        {
-            "iteration": 1,
-            "proposer": "baseline",
-            "status": "ran",
-            "run_id": "it0001",
-            "wall_seconds": 0.5,
-            "metric": 1.5,
-            "verdict": "baseline",
-            "best_so_far": 1.5,
-            "cumulative_cost_usd": 0.0,
-            "reason": None,
-        },
-        {
-            "iteration": 2,
-            "proposer": "tpe",
-            "status": "invalid",
-            "run_id": None,
-            "wall_seconds": None,
-            "metric": None,
-            "verdict": None,
-            "best_so_far": 1.5,
-            "cumulative_cost_usd": 0.01,
-            "reason": "EPOCHS: bad",
-        },
-        {
-            "iteration": 3,
-            "proposer": "tpe",
-            "status": "stopped",
-            "run_id": None,
-            "wall_seconds": None,
-            "metric": None,
-            "verdict": None,
-            "best_so_far": 1.5,
-            "cumulative_cost_usd": 0.01,
-            "reason": "cap",
-            "trigger": "max_iters",
-        },
+        Record(
+            1,
+            Status.RAN,
+            proposer="baseline",
+            run_id="it0001",
+            wall_seconds=0.5,
+            metric=1.5,
+            verdict="baseline",
+            best_so_far=1.5,
+            cumulative_cost_usd=0.0,
+        ),
+        Record(
+            2, Status.INVALID, proposer="tpe", best_so_far=1.5, cumulative_cost_usd=0.01, reason="EPOCHS: bad"
+        ),
+        Record(
+            3,
+            Status.STOPPED,
+            proposer="tpe",
+            best_so_far=1.5,
+            cumulative_cost_usd=0.01,
+            reason="cap",
+            trigger="max_iters",
+        ),
     ]
     out = io.StringIO()
     plain = PlainView("loss", out)

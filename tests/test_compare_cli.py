@@ -6,37 +6,35 @@ from pathlib import Path
 import pytest
 from loop_helpers import TOY_FAMILY, copy_toy
 
+from autoresearch.campaign import Campaign, CampaignMeta, Record, Status
 from autoresearch.cli import main
 from autoresearch.compare.inputs import CompareError, load_arms
 from autoresearch.compare.report import analyse, write_comparison
 from autoresearch.journal import write_json_atomic
-from autoresearch.loop.campaign import new_record
 
 NOISE = {"mean": 0.86, "std": 0.01, "k": 5, "measured_at": "2025-01-01T00:00:00+00:00"}
 
 
 def fake_campaign(root: Path, metrics: list, *, infeasible=(), step_s: float = 1.0, noise=NOISE) -> Path:
-    """A campaign directory as the loop writes it, for a family directory that is not there (a campaign
-    recorded elsewhere). ``None`` is a failed run; an invalid turn after the first run costs no experiment."""
+    """A campaign directory as the loop writes it (through the campaign store), for a family directory
+    that is not there (a campaign recorded elsewhere). ``None`` is a failed run; an invalid turn after
+    the first run costs no experiment."""
     registry = {**json.loads((TOY_FAMILY / "family.json").read_text()), "seed_noise": noise}
     root.mkdir(parents=True)
-    write_json_atomic(root / "family.json", registry)
-    write_json_atomic(root / "campaign.json", {"family": "/elsewhere/toy", "proposer": "scripted"})
+    CampaignMeta("/elsewhere/toy", registry["name"], "scripted", {}, "2025-01-01T00:00:00+00:00").write(root)
+    store = Campaign(root)
+    store.write_registry(registry)
     records, elapsed = [], 0.0
     for i, metric in enumerate(metrics):
         elapsed += step_s
-        status = "failed" if metric is None else "ran"
-        fields = {
-            "status": status,
-            "metric": metric,
-            "feasible": None if metric is None else i not in infeasible,
-        }
-        records.append({**fields, "run_id": f"it{len(records) + 1:04d}", "elapsed_s": elapsed})
+        status = Status.FAILED if metric is None else Status.RAN
+        fields = {"metric": metric, "feasible": None if metric is None else i not in infeasible}
+        records.append((status, {**fields, "run_id": f"it{len(records) + 1:04d}", "elapsed_s": elapsed}))
         if i == 0:
-            records.append({"status": "invalid", "reason": "refused", "elapsed_s": elapsed})
-    records.append({"status": "stopped", "trigger": "max_iters", "elapsed_s": elapsed})
-    lines = [json.dumps(new_record(**{**r, "iteration": i})) for i, r in enumerate(records, 1)]
-    (root / "proposals.jsonl").write_text("\n".join(lines) + "\n")
+            records.append((Status.INVALID, {"reason": "refused", "elapsed_s": elapsed}))
+    records.append((Status.STOPPED, {"trigger": "max_iters", "elapsed_s": elapsed}))
+    for i, (status, fields) in enumerate(records, 1):
+        store.append(Record(i, status, **fields))
     return root
 
 

@@ -7,12 +7,12 @@ from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
 
 from autoresearch.audit.inputs import AuditedCampaign
 from autoresearch.audit.verify import rank_candidates
+from autoresearch.campaign import Campaign, CampaignState
 from autoresearch.direction import Direction
 from autoresearch.family import Family
-from autoresearch.loop.campaign import CampaignPaths, CampaignState
 from autoresearch.loop.context import build_context
 from autoresearch.loop.early_stop import EarlyStopper
-from autoresearch.loop.runner import parse_progress
+from autoresearch.loop.protocol import parse_progress
 from autoresearch.proposers.prompting import render_prompt
 
 # Slow to learn and far from the optimum: a curve clearly worse than the finished runs' at step 1.
@@ -55,26 +55,28 @@ def test_a_hopeless_run_is_stopped_early_and_never_counts(tmp_path, pruner):
     assert all(len(r["progress"]) == 4 for r in ran)  # finished runs keep their whole curve
     hopeless = records[5]
     assert hopeless["config"]["LEARNING_RATE"] == 0.0001
-    assert hopeless["status"] == "pruned" and hopeless["run_status"] == "early_stopped"
+    assert hopeless["status"] == "early_stopped" and hopeless["run_status"] == "early_stopped"
     assert hopeless["metric"] is None and hopeless["feasible"] is None and hopeless["verdict"] is None
     assert 1 <= len(hopeless["progress"]) < 4 and "stopped early at step" in hopeless["reason"]
     assert hopeless["wall_seconds"] < max(r["wall_seconds"] for r in ran)
     # Never best, not a failure; the next proposer turn hears it and sees the curve.
-    state = CampaignState.from_records(Family.load(toy), records)
-    assert state.best["run_id"] != hopeless["run_id"] and state.consecutive_failures == 0
-    assert outcome.best["run_id"] == state.best["run_id"] and state.n_runs_ok == len(ran)
-    before_stop = CampaignState.from_records(Family.load(toy), records[:6])
+    store = Campaign(tmp_path / "c")
+    typed = store.records()
+    state = CampaignState.from_records(Family.load(toy), typed)
+    assert state.best.run_id != hopeless["run_id"] and state.consecutive_failures == 0
+    assert outcome.best.run_id == state.best.run_id and state.n_runs_ok == len(ran)
+    before_stop = CampaignState.from_records(Family.load(toy), typed[:6])
     context = build_context(before_stop, registry=Family.load(toy).registry, blind=False)
     assert any("stopped early" in w for w in context.warnings)
     shown = render_prompt(context)
     assert '"progress"' in "".join(shown.history) and hopeless["run_id"] in "".join(shown.history)
     # The audit never promotes it: it is no candidate.
     family = Family.load(toy)
-    campaign = AuditedCampaign(CampaignPaths(tmp_path / "c"), {}, family, records)
+    campaign = AuditedCampaign(store, None, family, typed)
     assert hopeless["run_id"] not in [c["source"]["run_id"] for c in rank_candidates(campaign, 10)]
     # On --resume the pruner's study is rebuilt from the records' curves.
-    study = EarlyStopper(pruner, Direction.MINIMIZE, records).study
-    pruned = [r for r in records if r["status"] == "pruned"]  # ASHA also stops some good runs
+    study = EarlyStopper(pruner, Direction.MINIMIZE, typed).study
+    pruned = [r for r in records if r["status"] == "early_stopped"]  # ASHA also stops some good runs
     assert [t.state.name for t in study.trials].count("PRUNED") == len(pruned) >= 1
     assert len(study.trials) == len(ran) + len(pruned)
 

@@ -25,7 +25,7 @@ import pytest
 import cwh_envs
 from autoresearch.editable import read_region
 from autoresearch.family import Family
-from autoresearch.loop.runner import parse_progress
+from autoresearch.loop.protocol import parse_progress
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")

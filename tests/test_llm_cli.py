@@ -7,10 +7,10 @@ import json
 import pytest
 from loop_helpers import copy_toy
 
+from autoresearch.campaign import CampaignMeta
 from autoresearch.cli import main
 from autoresearch.commands.loop import DEFAULTS, build_loop
 from autoresearch.family import Family
-from autoresearch.loop.campaign import CampaignMeta
 
 
 @pytest.fixture

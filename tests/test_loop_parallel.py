@@ -7,10 +7,10 @@ import optuna
 import pytest
 from loop_helpers import ScriptedProposer, copy_toy, run_loop
 
+from autoresearch.campaign import Campaign
+from autoresearch.campaign.check import check_campaign
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
-from autoresearch.loop.campaign import CampaignState
-from autoresearch.loop.campaign_check import check_campaign
 from autoresearch.proposers.base import Proposal, ProposerContext, RunOutcome
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tpe import TPEProposer
@@ -50,8 +50,8 @@ def test_two_workers_keep_two_runs_in_flight_and_show_them_to_the_proposer(toy, 
     assert records[-1]["status"] == "stopped" and records[-1]["iteration"] == len(records)
     assert sum(r["status"] == "ran" for r in records) == 4 and outcome.trigger == "max_iters"
     # The fold of the file (completion order) gives the live state; `check` finds nothing wrong.
-    state = CampaignState.from_records(Family.load(toy), records)
-    assert state.best["metric"] == outcome.best["metric"] and state.n_runs_ok == 4
+    state = Campaign(tmp_path / "c").state(Family.load(toy))
+    assert state.best.metric == outcome.best.metric and state.n_runs_ok == 4
     problems = check_campaign(tmp_path / "c").problems
     assert [p for p in problems if p.where != "campaign.json"] == []  # campaign.json is written by the CLI
 

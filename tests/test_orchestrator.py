@@ -3,8 +3,8 @@ import json
 import pytest
 from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop, snapshot
 
+from autoresearch.campaign import Record
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.campaign import RECORD_KEYS
 from autoresearch.proposers.base import Proposal, Usage
 
 
@@ -33,7 +33,7 @@ def test_records_schema_best_and_family_untouched(toy, tmp_path):
     )
     outcome, records = run_loop(toy, proposer, tmp_path / "c", max_iters=4, max_cost_usd=1.0)
     assert [r["iteration"] for r in records] == [1, 2, 3, 4, 5]
-    assert all(tuple(r) == RECORD_KEYS for r in records)
+    assert all(tuple(r) == tuple(Record.__dataclass_fields__) for r in records)  # every field, in order
     assert [r["status"] for r in records] == ["ran", "ran", "ran", "ran", "stopped"]
     assert records[-1]["trigger"] == "max_iters" and outcome.status == "stopped"
     it2 = records[1]
@@ -43,8 +43,9 @@ def test_records_schema_best_and_family_untouched(toy, tmp_path):
     assert records[2]["overrides"] == {"EPOCHS": 12, "ACTIVATION": "tanh"}
     assert records[3]["verdict"] == "regressed"
     registry = read_json(tmp_path / "c" / "family.json")
-    assert registry["best"]["run_id"] == outcome.best["run_id"]
-    assert registry["best"]["metric"] == min(r["metric"] for r in records if r["metric"] is not None)
+    assert registry["campaign_best"]["run_id"] == outcome.best.run_id  # the campaign's own, not the family's
+    assert registry["campaign_best"]["metric"] == min(r["metric"] for r in records if r["metric"] is not None)
+    assert "best" not in registry
     assert [t[1] for t in proposer.tells] == [r["metric"] for r in records[:4]]
     assert proposer.tells[0][0] == records[0]["config"]  # tell() receives full configurations
     runs = read_jsonl(tmp_path / "c" / "runs.jsonl")
@@ -159,7 +160,7 @@ def test_blind_context_hides_answer_bearing_numbers(toy, tmp_path):
     assert not any("0.05" in w or "target gap" in w for w in ctx.warnings)
     full = seeing.contexts[-1]
     assert not full.blind and full.program == (toy / "program.md").read_text()
-    assert full.registry["target"] == 0.05 and full.registry["best"]["run_id"] == "it0001"
+    assert full.registry["target"] == 0.05 and full.registry["campaign_best"]["run_id"] == "it0001"
     assert any("target gap" in w for w in full.warnings)
     assert full.history[0]["verdict"] == "baseline" and "auxiliary" in full.history[0]
     assert full.current_values == full.history[0]["config"]

@@ -72,11 +72,11 @@ def test_sections_come_stable_first_and_volatile_last():
 
 def test_registry_and_current_values_are_json_and_the_moving_best_is_not_in_the_prefix():
     context = dataclasses.replace(
-        make_context(), registry=REGISTRY | {"best": {"metric": 5.5, "run_id": "it0003"}}
+        make_context(), registry=REGISTRY | {"campaign_best": {"metric": 5.5, "run_id": "it0003"}}
     )
     prompt = render_prompt(context)
     block = prompt.stable.split(REGISTRY_HEADING)[1].split("```json\n")[1].split("\n```")[0]
-    assert json.loads(block) == {k: v for k, v in REGISTRY.items() if k != "best"}
+    assert json.loads(block) == REGISTRY  # without the campaign's running best
     current = prompt.tail.split(CURRENT)[1].split("```json\n")[1].split("\n```")[0]
     assert json.loads(current) == context.current_values
 

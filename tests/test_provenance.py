@@ -145,5 +145,5 @@ def test_a_recorded_run_reruns_to_the_same_metric_bit_for_bit(tmp_path, monkeypa
         runs_log=tmp_path / "again.jsonl", timeout=300,
     )  # fmt: skip
     assert again.ok and again.metric == record["metric"]
-    assert again.record["datasets"] == record["record"]["datasets"]
-    assert again.record["best_train_loss"] == record["record"]["best_train_loss"]
+    assert again.record["datasets"] == record["final_metric"]["datasets"]
+    assert again.record["best_train_loss"] == record["final_metric"]["best_train_loss"]

@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 from loop_helpers import copy_toy
 
+from autoresearch.campaign.check import check_campaign
 from autoresearch.commands.common import EXIT_ERROR, EXIT_NO_SPACE, error_exit
 from autoresearch.journal import read_jsonl
-from autoresearch.loop.campaign_check import check_campaign
 
 LIMIT = 6000  # bytes: the largest file a process under this limit may write
 

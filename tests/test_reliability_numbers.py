@@ -11,12 +11,13 @@ import pytest
 from llm_support import FakeServer, chat_reply, openai_client
 from loop_helpers import TOY_FAMILY, ScriptedProposer, copy_toy, run_loop
 
+from autoresearch.campaign import CampaignMeta
+from autoresearch.campaign.check import check_campaign
 from autoresearch.family import Family, FamilyError
 from autoresearch.journal import read_jsonl
-from autoresearch.loop.campaign import CampaignMeta
-from autoresearch.loop.campaign_check import check_campaign
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
-from autoresearch.loop.runner import check_record, parse_progress, run_experiment
+from autoresearch.loop.protocol import check_record, parse_progress
+from autoresearch.loop.runner import run_experiment
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.openai_api import OpenAIProposer
 from autoresearch.proposers.tools import PROPOSE

@@ -12,7 +12,7 @@ import textwrap
 import pytest
 from loop_helpers import copy_toy
 
-from autoresearch.loop.runner import MAX_LINE, StdoutReader, final_metric
+from autoresearch.loop.protocol import MAX_LINE, StdoutReader, final_metric
 
 # train.py of the toy copy: TOY_SPAM=lines:N prints N MB of short lines, cr:N prints N MB of
 # carriage-return progress without a newline, err:N prints N MB to stderr and fails; a PROGRESS point

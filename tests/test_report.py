@@ -86,7 +86,7 @@ def test_a_clone_without_the_saved_policy_keeps_its_figure_or_says_why(audited, 
 
 def test_rerunning_the_audit_runs_nothing_again(audited):
     _, root, _, argv = audited
-    logs = [*sorted(root.glob("audit/*/*.jsonl")), root.parent / "campaign-random" / "trials.jsonl"]
+    logs = [*sorted(root.glob("audit/*/*.jsonl")), root.parent / "campaign-random" / "proposals.jsonl"]
     before = [p.read_bytes() for p in logs]
     assert main(argv) == 0
     assert [p.read_bytes() for p in logs] == before

@@ -10,7 +10,9 @@ from loop_helpers import copy_toy, snapshot
 
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
-from autoresearch.loop.runner import parse_final_metric, run_experiment, run_prepare_check, stop_orphaned_run
+from autoresearch.loop.processes import stop_orphaned_run
+from autoresearch.loop.protocol import parse_final_metric
+from autoresearch.loop.runner import run_experiment, run_prepare_check
 
 HEADER = """# ===== Editable Configuration =====
 X = 1  # a knob

@@ -29,11 +29,11 @@ from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
+from autoresearch.campaign import CampaignMeta
 from autoresearch.commands.loop import DEFAULTS, build_loop
 from autoresearch.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.campaign import CampaignMeta
 from autoresearch.loop.context import shown_registry, summarize_random_arm
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets

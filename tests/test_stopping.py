@@ -3,8 +3,8 @@ import time
 import pytest
 from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop, stop
 
+from autoresearch.campaign import Campaign, CampaignState
 from autoresearch.family import Family
-from autoresearch.loop.campaign import CampaignState
 from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, stop_gate
 from autoresearch.loop.verdicts import noise_threshold, plateau, verdict
 from autoresearch.proposers.base import Proposal, Usage
@@ -102,7 +102,8 @@ def test_wall_clock(toy, tmp_path):
 
 
 def test_precedence_and_closest_trigger(toy, tmp_path):
-    _, records = run_loop(toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "c", max_iters=2)
+    run_loop(toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "c", max_iters=2)
+    records = Campaign(tmp_path / "c").records()
     state = CampaignState.from_records(Family.load(toy), records[:2])  # target met, 2 iterations, 2 runs
     everything = Budgets(max_seconds=1, max_runs=2, max_iters=2, max_cost_usd=0.0)
     assert first_trigger(state, everything, elapsed_s=5).name == "wall_clock"
@@ -179,7 +180,7 @@ def test_stop_gate_needs_four_axes(toy, tmp_path):
 
 
 def test_stop_gate_accepts_when_the_target_is_met(toy, tmp_path):
-    _, records = run_loop(toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "c", max_iters=2)
-    state = CampaignState.from_records(Family.load(toy), records[:2])
+    run_loop(toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "c", max_iters=2)
+    state = CampaignState.from_records(Family.load(toy), Campaign(tmp_path / "c").records()[:2])
     accepted, why = stop_gate({"status": "target_met"}, state)
     assert accepted and why.startswith("target met")

@@ -9,9 +9,8 @@ from typing import Any
 
 from autoresearch import provenance
 from autoresearch.audit.auditjson import read_audit
+from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, Record
 from autoresearch.family import SEARCH, TEST, Family
-from autoresearch.journal import read_jsonl
-from autoresearch.loop.campaign import CampaignError, CampaignMeta, CampaignPaths
 from autoresearch.space import canonical_key
 
 AUDIT_DIR = "audit"
@@ -66,11 +65,15 @@ def seed_noise(family: Family, split: str = SEARCH) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class AuditedCampaign:
-    paths: CampaignPaths
+    store: Campaign
     meta: CampaignMeta  # campaign.json
     family: Family
-    records: list[dict[str, Any]]  # proposals.jsonl
+    records: list[Record]  # proposals.jsonl
     provenance: dict[str, Any] | None = None  # what this audit runs under (each step records it)
+
+    @property
+    def paths(self) -> CampaignPaths:
+        return self.store.paths
 
     @property
     def root(self) -> Path:
@@ -85,27 +88,28 @@ class AuditedCampaign:
         return float(self.meta.settings["timeout_per_run"])
 
     @property
-    def ran(self) -> list[dict[str, Any]]:
-        """Runs with a result: a failed or early-stopped (pruned) run is never a candidate."""
-        return [r for r in self.records if r["status"] == "ran"]
+    def ran(self) -> list[Record]:
+        """Runs with a result: a failed or early-stopped run is never a candidate."""
+        return [r for r in self.records if r.ran]
 
-    def single_seed_best(self) -> dict[str, Any] | None:
-        """The campaign's best feasible run (a one-seed claim)."""
+    def single_seed_best(self) -> Record | None:
+        """The campaign's best feasible run (a one-seed claim), the earliest iteration on ties."""
         sign = self.family.direction
-        feasible = [r for r in self.ran if r["feasible"]]
-        return max(feasible, key=lambda r: (sign * r["metric"], -r["iteration"])) if feasible else None
+        feasible = [r for r in self.ran if r.feasible]
+        return max(feasible, key=lambda r: (sign * r.metric, -r.iteration)) if feasible else None
 
 
 def open_campaign(campaign_dir: str | Path) -> AuditedCampaign:
-    paths = CampaignPaths(Path(campaign_dir).resolve())
-    if not paths.campaign_json.exists() or not paths.proposals.exists():
+    store = Campaign(Path(campaign_dir).resolve())
+    if not store.exists() or not store.paths.proposals.exists():
         raise AuditError(f"{campaign_dir}: not a campaign directory (no campaign.json or proposals.jsonl)")
     try:
-        meta = CampaignMeta.read(paths.root)
-        family = meta.open_family(paths.root)
+        meta = store.meta()
+        family = meta.open_family(store.root)
+        records = store.records()
     except CampaignError as err:
         raise AuditError(str(err)) from None
-    return AuditedCampaign(paths, meta, family, read_jsonl(paths.proposals), provenance.collect(family.path))
+    return AuditedCampaign(store, meta, family, records, provenance.collect(family.path))
 
 
 def provenance_report(campaign: AuditedCampaign, strict: bool) -> list[str]:

@@ -19,9 +19,9 @@ from autoresearch.audit.auditjson import read_audit, set_family_field, write_ste
 from autoresearch.audit.inputs import AuditedCampaign, AuditError
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, at_split, run_trials
+from autoresearch.campaign import portable_path
 from autoresearch.executors import Executor
 from autoresearch.family import TEST, Family
-from autoresearch.loop.campaign import portable_path
 
 STEP = "noise"
 

@@ -2,12 +2,11 @@
 
 The random proposer samples the same editable surface, starting from the same first
 experiment (the baseline at the family's default seed), with the campaign's per-experiment
-timeout and as many experiments as the campaign ran. Random draws ignore the history, so all of
-them are drawn up front (exactly the draws the loop would make: the proposer's stream depends
-only on its seed and the iteration) and run in parallel; the arm is then written as a normal
-campaign directory (campaign.json, proposals.jsonl, runs.jsonl, runs/) that reports and
-comparisons read like any other. Unlike the loop, the arm does not stop at the target: it is a
-best-of-N over all N draws.
+timeout and as many experiments as the campaign ran. The arm is an ordinary loop campaign
+(autoresearch.loop.orchestrator with the random proposer, the audit's workers running its draws in
+parallel), so it is written, resumed and read like any other. Random draws ignore the history:
+the proposer's stream depends only on its seed and the iteration. Unlike a campaign, the arm does
+not stop at the target, on a plateau or on failures: it is a best-of-N over all N draws.
 
 The arm searches the space the campaign's key-free proposer searched (its ``--space``), else each
 parameter's ``random_range`` (autoresearch.space.SPACES); ``space`` overrides either.
@@ -31,22 +30,12 @@ from autoresearch.audit import stats
 from autoresearch.audit.auditjson import read_audit, write_step
 from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id, gate_split
 from autoresearch.audit.trials import Trial, at_split, run_trials
+from autoresearch.campaign import Campaign, CampaignMeta, CampaignState, Record, Status, portable_path
 from autoresearch.executors import Executor
-from autoresearch.family import SEARCH, TEST, Family
-from autoresearch.journal import Journal
-from autoresearch.loop.campaign import (
-    BASELINE_PROPOSER,
-    RUN_STATUSES,
-    CampaignMeta,
-    CampaignPaths,
-    CampaignState,
-    new_record,
-    now,
-    portable_path,
-)
-from autoresearch.loop.orchestrator import BASELINE_HYPOTHESIS, run_id_for
-from autoresearch.loop.verdicts import run_verdict
-from autoresearch.proposers.base import ProposerContext
+from autoresearch.family import SEARCH, TEST
+from autoresearch.loop.live import PlainView
+from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.space import NUMERIC_TYPES
 
@@ -66,7 +55,7 @@ def default_arm_dir(campaign: AuditedCampaign, matched_range: bool) -> Path:
 
 def campaign_count(campaign: AuditedCampaign) -> int:
     """Experiments the campaign ran (successful or failed, the baseline included)."""
-    return sum(r["status"] in RUN_STATUSES for r in campaign.records)
+    return sum(r.status.started_a_run for r in campaign.records)
 
 
 def matched_ranges(campaign: AuditedCampaign) -> dict[str, dict[str, Any]]:
@@ -75,7 +64,7 @@ def matched_ranges(campaign: AuditedCampaign) -> dict[str, dict[str, Any]]:
     for name, param in family.space.params.items():
         if param.axis != MATCHED_AXIS:
             continue
-        used = [r["config"][name] for r in campaign.records if r["status"] in RUN_STATUSES]
+        used = [r.config[name] for r in campaign.records if r.status.started_a_run]
         if param.type in NUMERIC_TYPES:
             ranges[name] = {"low": min(used), "high": max(used)}
         else:
@@ -104,65 +93,10 @@ def searched_registry(registry: dict[str, Any], space: str, ranges: dict[str, An
     return registry
 
 
-def draw_configs(family: Family, registry: dict[str, Any], seed: int, count: int) -> list[dict[str, Any]]:
-    """The baseline, then the random proposer's draws for iterations 2..count."""
-    proposer = RandomProposer(registry, seed, space="random-range")
-    baseline = family.baseline_config
-    configs = [baseline]
-    for iteration in range(2, count + 1):
-        context = ProposerContext.of_configs(iteration, registry, configs, baseline)
-        proposal = proposer.propose(context)
-        if proposal.kind != "propose":  # the space ran out of unseen configurations
-            break
-        configs.append(family.space.validate_full(proposal.overrides))
-    return configs
-
-
-def _record(family: Family, state: CampaignState, iteration: int, config: dict, row: dict) -> dict[str, Any]:
-    """One proposals.jsonl record, as the loop writes it for a run."""
-    baseline = iteration == 1
-    annotation = {"hypothesis": BASELINE_HYPOTHESIS if baseline else "random sample (Eq. randsearch)"}
-    overrides = {} if baseline else config
-    record = new_record(
-        iteration=iteration,
-        time=now(),
-        proposer=BASELINE_PROPOSER if baseline else PROPOSER,
-        proposal={"kind": "propose", "overrides": overrides, "annotation": annotation, "error": None},
-        overrides=overrides,
-        config=config,
-        run_id=row["run_id"],
-        seed=family.default_seed,
-        cost_usd=0.0,
-        input_tokens=0,
-        output_tokens=0,
-        cumulative_cost_usd=0.0,
-        elapsed_s=round(state.elapsed_s + (row["wall_seconds"] or 0.0), 3),  # run time, summed
-        run_status=row["status"],
-        wall_seconds=row["wall_seconds"],
-        returncode=row["returncode"],
-        interrupted_run_ids=[],
-    )
-    if row["status"] == "ok":
-        feasible = row["feasible"]
-        judged = run_verdict(
-            row["metric"],
-            feasible=feasible,
-            is_baseline=baseline,
-            prior_best=state.best_metric,
-            direction=family.direction,
-            sigma=family.sigma,
-        )
-        record.update(
-            status="ran", metric=row["metric"], feasible=feasible, record=row["record"], verdict=judged
-        )
-    else:
-        record.update(status="failed", reason=row["reason"])
-    record["best_so_far"] = state.best_after(record["metric"], record["feasible"])
-    return record
-
-
-def _summary_run(record: dict[str, Any] | None) -> dict[str, Any] | None:
-    return record and {k: record[k] for k in ("iteration", "run_id", "metric", "feasible", "config")}
+def _summary_run(record: Record | None) -> dict[str, Any] | None:
+    if record is None:
+        return None
+    return {k: getattr(record, k) for k in ("iteration", "run_id", "metric", "feasible", "config")}
 
 
 def run_random_arm(
@@ -186,7 +120,7 @@ def run_random_arm(
     space = arm_space(campaign, space)
     ranges = matched_ranges(campaign) if matched_range else None
     registry = searched_registry(family.registry, space, ranges)
-    paths = CampaignPaths((out or default_arm_dir(campaign, matched_range)).resolve())
+    arm = Campaign((out or default_arm_dir(campaign, matched_range)).resolve())
     settings = {
         "timeout_per_run": campaign.timeout,
         "seed": seed,
@@ -195,60 +129,35 @@ def run_random_arm(
         "matched_range": ranges,
         "space": space,
     }
-    if paths.campaign_json.exists():  # resuming: only the very same arm
-        saved = CampaignMeta.read(paths.root)
+    if arm.exists():  # resuming: only the very same arm
+        saved = arm.meta()
         saved_settings = {"space": DEFAULT_SPACE, **saved.settings}  # arms written before the choice existed
         if (saved.family_name, saved.proposer, saved_settings) != (family.name, PROPOSER, settings):
             raise AuditError(
-                f"{paths.root} holds a random arm with other settings; choose another --out or remove it"
+                f"{arm.root} holds a random arm with other settings; choose another --out or remove it"
             )
-        saved.resumed(family, saved_settings).write(paths.root)
+        saved.resumed(family, saved_settings).write(arm.root)
     else:
-        paths.root.mkdir(parents=True, exist_ok=True)
-        CampaignMeta.new(family, PROPOSER, settings).write(paths.root)
-    configs = draw_configs(family, registry, seed, count)
-    trials = [Trial(run_id_for(i), config, family.default_seed) for i, config in enumerate(configs, start=1)]
-    rows = run_trials(
-        family,
-        trials,
-        executor,
-        paths.root / "trials.jsonl",
-        paths.runs_dir,
-        campaign.timeout,
-        paths.runs_log,
-        label="random",
-        eval_split=SEARCH,
-    )
-    journal = Journal(paths.proposals)
-    state = CampaignState.from_records(family, journal.read())
-    for iteration in range(state.iterations + 1, len(configs) + 1):
-        record = _record(family, state, iteration, configs[iteration - 1], rows[iteration - 1])
-        journal.append(record)
-        state.apply(record)
-    if not state.finished:
-        reason = f"{len(configs)} experiments: the budget of {campaign.root.name}"
-        stop = new_record(
-            iteration=state.next_iteration,
-            time=now(),
-            proposer=PROPOSER,
-            status="stopped",
-            reason=reason,
-            trigger="max_iters",
-            best_so_far=state.best_metric,
-            cost_usd=0.0,
-            input_tokens=0,
-            output_tokens=0,
-            cumulative_cost_usd=0.0,
-            elapsed_s=state.elapsed_s,
-        )
-        journal.append(stop)
-        state.apply(stop)
-    part = summarize(campaign, paths.root, state, matched_range, ranges, seed, space)
+        arm.root.mkdir(parents=True, exist_ok=True)
+        CampaignMeta.new(family, PROPOSER, settings).write(arm.root)
+    # A best-of-N: every draw runs, whatever the target, the plateau or a run of failures says.
+    budgets = Budgets(max_iters=count, max_failures=count + 1, plateau_window=count + 1, stop_at_target=False)
+    loop = LoopSettings(PROPOSER, budgets, timeout_per_run=campaign.timeout, workers=executor.workers)
+    proposer = RandomProposer(registry, seed, space="random-range")
+    view = PlainView(family.metric)
+    Orchestrator(family, proposer, arm.root, loop, view=view, executor=_remote(executor)).run()
+    state = arm.state(family)
+    part = summarize(campaign, arm.root, state, matched_range, ranges, seed, space)
     if split == TEST:  # the paper's verdict stays beside the one on the sealed split
         part["search_verdict"] = {"verdict": part["verdict"], "units": part["units"]}
         part.update(judge_on_test(campaign, executor, state, matched_range))
     write_step(campaign.root, step_name(matched_range), part)
     return part
+
+
+def _remote(executor: Executor) -> Executor | None:
+    """The executor the arm's loop hands its runs to: Ray's; local workers are the loop's own threads."""
+    return executor if executor.name == "ray" else None
 
 
 def judge_on_test(
@@ -257,10 +166,10 @@ def judge_on_test(
     """Eq. verdict on the sealed test split: each side's search-selected best, trained again at the
     default seed and scored on both splits (one training each)."""
     family, sign = campaign.family, campaign.family.direction
-    bests = {"agent": campaign.single_seed_best(), "random": _best_of_arm(state)}
+    bests = {"agent": campaign.single_seed_best(), "random": state.best}
     sides = {side: best for side, best in bests.items() if best is not None}
     trials = [
-        Trial(f"judge-{side}-{config_id(best['config'])}", best["config"], family.default_seed)
+        Trial(f"judge-{side}-{config_id(best.config)}", best.config, family.default_seed)
         for side, best in sides.items()
     ]
     root = campaign.step_dir(step_name(matched_range))
@@ -269,14 +178,14 @@ def judge_on_test(
     for (side, best), row in zip(sides.items(), rows, strict=True):
         metric, feasible = at_split(row, TEST)
         judged[side] = {
-            "config_id": config_id(best["config"]),
+            "config_id": config_id(best.config),
             "run_id": row["run_id"],
             "status": row["status"],
             "test_metric": metric,
             "test_feasible": feasible,
             "search_metric": row["metric"],
-            "recorded_search_metric": best["metric"],
-            "reproduced": row["status"] == "ok" and row["metric"] == best["metric"],
+            "recorded_search_metric": best.metric,
+            "reproduced": row["status"] == "ok" and row["metric"] == best.metric,
         }
 
     def value(side: str) -> float | None:
@@ -292,11 +201,6 @@ def judge_on_test(
     return out
 
 
-def _best_of_arm(state: CampaignState) -> dict[str, Any] | None:
-    ran = [r for r in state.records if r["status"] == "ran"]
-    return next((r for r in ran if r["run_id"] == state.best["run_id"]), None) if state.best else None
-
-
 def summarize(
     campaign: AuditedCampaign,
     arm_dir: Path,
@@ -309,32 +213,32 @@ def summarize(
     """Eq. verdict in noise units on the search split, the strict-feasible fraction, and the arm's
     bests; written to audit.json by the caller."""
     family, sign = campaign.family, campaign.family.direction
-    ran = [r for r in state.records if r["status"] == "ran"]
-    best_any = max(ran, key=lambda r: sign * r["metric"]) if ran else None
-    best = _best_of_arm(state)
+    ran = [r for r in state.records if r.ran]
+    best_any = max(ran, key=lambda r: sign * r.metric) if ran else None
+    best = state.best
     agent = campaign.single_seed_best()
     part: dict[str, Any] = {
         "status": "done",
         "split": SEARCH,
         "dir": portable_path(arm_dir),
-        "count": sum(r["status"] in RUN_STATUSES for r in state.records),
+        "count": sum(r.status.started_a_run for r in state.records),
         "seed": seed,
         "space": space,
         "matched_range": ranges if matched_range else None,
         "n_ran": len(ran),
-        "n_failed": sum(r["status"] == "failed" for r in state.records),
-        "n_feasible": sum(bool(r["feasible"]) for r in ran),
+        "n_failed": sum(r.status is Status.FAILED for r in state.records),
+        "n_feasible": sum(bool(r.feasible) for r in ran),
         "feasibility_field": family.feasibility_field,
         "best": _summary_run(best),
         "best_any": _summary_run(best_any),
-        "agent_best": agent and agent["metric"],
+        "agent_best": agent and agent.metric,
         "verdict": None,
         "units": None,
         "provenance": campaign.provenance,
     }
     if family.sigma:
         part["verdict"], part["units"] = stats.random_verdict(
-            part["agent_best"], best and best["metric"], family.sigma, sign
+            part["agent_best"], best and best.metric, family.sigma, sign
         )
     else:
         part["verdict_note"] = "no measured seed noise: run `autoresearch noise` for the verdict"

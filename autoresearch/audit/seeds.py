@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.audit.auditjson import read_audit
-from autoresearch.journal import read_jsonl
+from autoresearch.campaign import Campaign
 
 
 def fresh_seeds(used: Iterable[int], n: int) -> list[int]:
@@ -57,9 +57,9 @@ def used_seeds(
     skip = {skip_step} if isinstance(skip_step, str) else set(skip_step)
     used = {default_seed} | _seeds_in(seed_noise or {})
     for campaign in campaign_dirs:
-        campaign = Path(campaign)
-        for name in ("proposals.jsonl", "runs.jsonl"):
-            used |= {r["seed"] for r in read_jsonl(campaign / name) if isinstance(r.get("seed"), int)}
+        store = Campaign(campaign)
+        used |= {r.seed for r in store.records() if isinstance(r.seed, int)}
+        used |= {r["seed"] for r in store.logged_runs() if isinstance(r.get("seed"), int)}
         audit = read_audit(campaign)
         used |= _seeds_in({step: part for step, part in audit.items() if step not in skip})
     return used

@@ -23,7 +23,8 @@ from autoresearch.audit.progress import TrialProgress
 from autoresearch.executors import Executor
 from autoresearch.family import SEARCH, TEST, Family
 from autoresearch.journal import Journal
-from autoresearch.loop.runner import RunResult, load_result, logged_run, run_experiment, stop_orphaned_run
+from autoresearch.loop.processes import stop_orphaned_run
+from autoresearch.loop.runner import RunResult, load_result, logged_run, run_experiment
 
 
 @dataclass(frozen=True)

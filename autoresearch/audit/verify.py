@@ -28,6 +28,7 @@ from autoresearch.audit.auditjson import update_family, write_step
 from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, gate_split, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, at_split, run_trials
+from autoresearch.campaign import Record
 from autoresearch.executors import Executor
 from autoresearch.family import SEARCH, TEST, Family
 
@@ -38,25 +39,25 @@ def rank_candidates(campaign: AuditedCampaign, top: int) -> list[dict[str, Any]]
     """The ``top`` best distinct feasible configurations other than the baseline, each with the run
     that produced it (its best run, were a configuration run more than once)."""
     family, sign = campaign.family, campaign.family.direction
-    best: dict[str, dict[str, Any]] = {}
+    best: dict[str, Record] = {}
     for record in campaign.ran:
-        if not record["feasible"] or not changed_params(family, record["config"]):
+        if not record.feasible or not changed_params(family, record.config):
             continue
-        cid = config_id(record["config"])
-        if cid not in best or sign * record["metric"] > sign * best[cid]["metric"]:
+        cid = config_id(record.config)
+        if cid not in best or sign * record.metric > sign * best[cid].metric:
             best[cid] = record
-    ranked = sorted(best.values(), key=lambda r: (-sign * r["metric"], r["iteration"]))[:top]
+    ranked = sorted(best.values(), key=lambda r: (-sign * r.metric, r.iteration))[:top]
     return [
         {
-            "config_id": config_id(r["config"]),
-            "config": r["config"],
-            "changed": changed_params(family, r["config"]),
+            "config_id": config_id(r.config),
+            "config": r.config,
+            "changed": changed_params(family, r.config),
             "source": {
-                "iteration": r["iteration"],
-                "run_id": r["run_id"],
-                "seed": r["seed"],
-                "metric": r["metric"],
-                "best_train_loss": (r.get("record") or {}).get("best_train_loss"),
+                "iteration": r.iteration,
+                "run_id": r.run_id,
+                "seed": r.seed,
+                "metric": r.metric,
+                "best_train_loss": (r.final_metric or {}).get("best_train_loss"),
             },
         }
         for r in ranked
@@ -251,8 +252,11 @@ def verify(
         "provenance": campaign.provenance,
     }
     if best_run is not None:
-        part["single_seed_best"] = {"config_id": config_id(best_run["config"])} | {
-            k: best_run[k] for k in ("run_id", "iteration", "metric")
+        part["single_seed_best"] = {
+            "config_id": config_id(best_run.config),
+            "run_id": best_run.run_id,
+            "iteration": best_run.iteration,
+            "metric": best_run.metric,
         }
     if not candidates:
         part.update(

@@ -7,11 +7,11 @@ import sys
 from pathlib import Path
 
 from autoresearch.audit.inputs import AuditError, open_campaign, provenance_report
+from autoresearch.campaign import CampaignError
+from autoresearch.campaign.check import check_campaign
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
 from autoresearch.loop import repeats
-from autoresearch.loop.campaign import CampaignError
-from autoresearch.loop.campaign_check import check_campaign
 from autoresearch.loop.campaign_lock import holder, not_a_directory
 
 
@@ -54,6 +54,8 @@ def _check_one(root: Path, strict: bool) -> bool:
     else:
         count = len(result.problems) + (len(differences) if strict else 0)
         print(f"{root}: {count} problem(s), {result.iterations} iterations readable{note}")
+    for note in result.notes:
+        print(f"  note: {note}")
     for problem in result.problems:
         print(f"  {problem}")
     for line in differences:  # listed always; problems only with --strict-provenance

@@ -9,12 +9,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 from autoresearch.audit.inputs import AuditError, open_campaign, provenance_report
+from autoresearch.campaign import CampaignError
+from autoresearch.campaign.check import audit_problems
 from autoresearch.executors import Executor, make_executor
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
-from autoresearch.loop.campaign import CampaignError
-from autoresearch.loop.campaign_check import audit_problems
-from autoresearch.loop.runner import interruptible_runs
+from autoresearch.loop.processes import interruptible_runs
 
 # Exit statuses (docs/autoresearch-loop.md, docs/audit.md); 1 is kept for a failed prepare.py --check
 # (loop) and a campaign with problems (check), 130 for an interrupt.

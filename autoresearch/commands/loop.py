@@ -6,18 +6,17 @@ import argparse
 import os
 import signal
 import sys
-from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 from autoresearch import provenance
+from autoresearch.campaign import CampaignError, CampaignMeta, CampaignPaths, portable_path, session
 from autoresearch.commands.common import error_exit
 from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json
 from autoresearch.loop import repeats
-from autoresearch.loop.campaign import CampaignError, CampaignMeta, CampaignPaths, portable_path, session
 from autoresearch.loop.campaign_lock import LOCK_FILE, CampaignLock
 from autoresearch.loop.context import shown_registry
 from autoresearch.loop.dry_run import dry_run
@@ -300,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
     resume_hint = f"autoresearch loop --resume --campaign {root}"
     try:
         view = make_view(family.metric, args.plain)
-        outcome = Orchestrator(family, proposer, root, replace(loop, executor=executor), view=view).run()
+        outcome = Orchestrator(family, proposer, root, loop, view=view, executor=executor).run()
     except KeyboardInterrupt:
         print(f"\ninterrupted; campaign: {root}\nresume with: {resume_hint}", file=sys.stderr)
         return 130
@@ -312,7 +311,7 @@ def run(args: argparse.Namespace) -> int:
             executor.close()
         lock.release()
     best = outcome.best
-    best_text = f"{best['metric']:.6g} ({best['run_id']})" if best else "none (no feasible run)"
+    best_text = f"{best.metric:.6g} ({best.run_id})" if best else "none (no feasible run)"
     print(f"campaign: {root}")
     print(
         f"  ended: {outcome.status}"

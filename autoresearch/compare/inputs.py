@@ -18,8 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.campaign import RUN_STATUSES, TERMINAL, CampaignPaths
+from autoresearch.campaign import Campaign, CampaignError, CampaignPaths
 from autoresearch.loop.repeats import repeat_dirs
 
 FAMILY_KEYS = ("name", "metric", "direction", "target", "feasibility_field")
@@ -70,21 +69,25 @@ def campaign_dirs(path: Path) -> tuple[list[Path], list[Path]]:
 
 
 def read_repeat(path: Path) -> Repeat:
-    paths = CampaignPaths(path)
+    store = Campaign(path)
+    paths = store.paths
     for needed in (paths.campaign_json, paths.family_json, paths.proposals):
         if not needed.is_file():
             raise CompareError(f"{path}: not a campaign directory: {needed.name} is missing")
-    records = read_jsonl(paths.proposals)
-    runs = [r for r in records if r["status"] in RUN_STATUSES]
+    try:
+        records, proposer = store.records(), store.meta().proposer
+    except CampaignError as err:
+        raise CompareError(str(err)) from None
+    runs = [r for r in records if r.status.started_a_run]
     last = records[-1] if records else None
     return Repeat(
         dir=path,
-        proposer=read_json(paths.campaign_json).get("proposer", "?"),
-        registry=read_json(paths.family_json),
-        metrics=np.array([r["metric"] if r["status"] == "ran" else math.nan for r in runs], dtype=float),
-        feasible=np.array([r["status"] == "ran" and bool(r["feasible"]) for r in runs], dtype=bool),
-        elapsed=np.array([r.get("elapsed_s") or 0.0 for r in runs], dtype=float),
-        ended=(last["trigger"] or last["status"]) if last and last["status"] in TERMINAL else None,
+        proposer=proposer,
+        registry=store.registry(),
+        metrics=np.array([r.metric if r.ran else math.nan for r in runs], dtype=float),
+        feasible=np.array([r.ran and bool(r.feasible) for r in runs], dtype=bool),
+        elapsed=np.array([r.elapsed_s or 0.0 for r in runs], dtype=float),
+        ended=(last.trigger or last.status.value) if last and last.status.ends_campaign else None,
     )
 
 

@@ -13,7 +13,7 @@ import fcntl
 import os
 from pathlib import Path
 
-from autoresearch.loop.campaign import CampaignError
+from autoresearch.campaign import CampaignError
 
 LOCK_FILE = "campaign.lock"
 

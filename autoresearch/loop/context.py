@@ -8,9 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from autoresearch.campaign import Campaign, CampaignState, Status
 from autoresearch.family import Family, search_view
-from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.campaign import CampaignPaths, CampaignState
 from autoresearch.proposers.base import ProposerContext
 
 # The registry fields a blind proposer may see: the problem's invariant facts and its search
@@ -39,24 +38,22 @@ def shown_registry(registry: dict[str, Any], blind: bool) -> dict[str, Any]:
 
 def summarize_random_arm(campaign_dir: Path, family: Family) -> str:
     """A compact text summary of a random-search campaign of the same family."""
-    paths = CampaignPaths(Path(campaign_dir))
-    if not paths.proposals.exists():
-        raise FileNotFoundError(f"{paths.proposals}: not found; is {campaign_dir} a campaign directory?")
-    if paths.campaign_json.exists():
-        arm_family = read_json(paths.campaign_json).get("family_name")
-        if arm_family not in (None, family.name):
-            raise ValueError(f"{campaign_dir} is a campaign of family {arm_family!r}, not {family.name!r}")
-    records = read_jsonl(paths.proposals)
-    ran = [r for r in records if r["status"] == "ran"]
-    failed = sum(r["status"] == "failed" for r in records)
-    metric, direction = family.metric, family.direction
-    lines = [f"Random-search arm ({paths.root.name}): {len(ran)} successful runs, {failed} failed."]
-    ranked = sorted(ran, key=lambda r: (not r["feasible"], -direction * r["metric"]))
-    for r in ranked[:TOP_K]:
-        flag = "" if r["feasible"] else " (infeasible)"
-        lines.append(
-            f"  {metric}={r['metric']:.6g}{flag} at iteration {r['iteration']}: {json.dumps(r['config'])}"
+    arm = Campaign(campaign_dir)
+    if not arm.paths.proposals.exists():
+        raise FileNotFoundError(f"{arm.paths.proposals}: not found; is {campaign_dir} a campaign directory?")
+    if arm.exists() and arm.meta().family_name != family.name:
+        raise ValueError(
+            f"{campaign_dir} is a campaign of family {arm.meta().family_name!r}, not {family.name!r}"
         )
+    records = arm.records()
+    ran = [r for r in records if r.ran]
+    failed = sum(r.status is Status.FAILED for r in records)
+    metric, direction = family.metric, family.direction
+    lines = [f"Random-search arm ({arm.root.name}): {len(ran)} successful runs, {failed} failed."]
+    ranked = sorted(ran, key=lambda r: (not r.feasible, -direction * r.metric))
+    for r in ranked[:TOP_K]:
+        flag = "" if r.feasible else " (infeasible)"
+        lines.append(f"  {metric}={r.metric:.6g}{flag} at iteration {r.iteration}: {json.dumps(r.config)}")
     return "\n".join(lines)
 
 

@@ -6,8 +6,8 @@ import json
 import sys
 from typing import TextIO
 
+from autoresearch.campaign import CampaignMeta, CampaignState
 from autoresearch.family import resolve_family, search_view
-from autoresearch.loop.campaign import CampaignMeta, CampaignState
 from autoresearch.loop.context import build_context, shown_registry
 from autoresearch.loop.stopping import Budgets, closest_trigger
 from autoresearch.proposers import make_proposer

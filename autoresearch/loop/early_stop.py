@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from autoresearch.campaign import Record, Status
 from autoresearch.direction import Direction
 
 if TYPE_CHECKING:
@@ -31,14 +32,14 @@ def make_pruner(name: str) -> optuna.pruners.BasePruner:
     raise ValueError(f"--early-stop must be one of {', '.join(EARLY_STOP)}, got {name!r}")
 
 
-def _curve(record: dict[str, Any]) -> dict[int, float]:
-    return {point["step"]: point["value"] for point in record.get("progress") or ()}
+def _curve(record: Record) -> dict[int, float]:
+    return {point["step"]: point["value"] for point in record.progress or ()}
 
 
 class EarlyStopper:
     """Thread-safe: runs in flight report from their own supervising threads."""
 
-    def __init__(self, name: str, direction: Direction, records: list[dict[str, Any]] = ()):
+    def __init__(self, name: str, direction: Direction, records: list[Record] = ()):
         import optuna
 
         optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -49,18 +50,17 @@ class EarlyStopper:
         for record in records:
             self._add_finished(record)
 
-    def _add_finished(self, record: dict[str, Any]) -> None:
+    def _add_finished(self, record: Record) -> None:
         curve = _curve(record)
-        if not curve or record["status"] not in ("ran", "pruned"):
+        if not curve or record.status not in (Status.RAN, Status.EARLY_STOPPED):
             return  # a failed run's curve says nothing about the metric it would have reached
         import optuna
         from optuna.trial import TrialState
 
-        ran = record["status"] == "ran"
         self.study.add_trial(
             optuna.trial.create_trial(
-                state=TrialState.COMPLETE if ran else TrialState.PRUNED,
-                value=record["metric"] if ran else None,
+                state=TrialState.COMPLETE if record.ran else TrialState.PRUNED,
+                value=record.metric if record.ran else None,
                 intermediate_values=curve,
                 params={},
                 distributions={},
@@ -79,17 +79,16 @@ class EarlyStopper:
 
         return report
 
-    def finish(self, record: dict[str, Any]) -> None:
+    def finish(self, record: Record) -> None:
         """Tell the study how a run ended (a run adopted on resume had no trial: it is added)."""
         from optuna.trial import TrialState
 
         with self._lock:
-            trial = self._trials.pop(record["run_id"], None)
+            trial = self._trials.pop(record.run_id, None)
             if trial is None:
                 self._add_finished(record)
-            elif record["status"] == "ran":
-                self.study.tell(trial, record["metric"])
+            elif record.ran:
+                self.study.tell(trial, record.metric)
             else:
-                self.study.tell(
-                    trial, state=TrialState.PRUNED if record["status"] == "pruned" else TrialState.FAIL
-                )
+                stopped = record.status is Status.EARLY_STOPPED
+                self.study.tell(trial, state=TrialState.PRUNED if stopped else TrialState.FAIL)

@@ -12,6 +12,7 @@ import sys
 import threading
 from typing import Any, ClassVar, TextIO
 
+from autoresearch.campaign import Record, Status
 from autoresearch.proposers.base import Proposal
 
 MAX_ROWS = 20
@@ -33,17 +34,16 @@ def _number(value: Any) -> str:
     return "-" if value is None else f"{value:.5g}"
 
 
-def _outcome(record: dict[str, Any]) -> str:
+def _outcome(record: Record) -> str:
     """Status column: what happened, with the run id when something ran."""
-    status = record["status"]
-    if status == "ran":
-        wall = record["wall_seconds"]
-        return record["run_id"] + (f" ({wall:.1f}s)" if wall is not None else "")
-    if status in ("failed", "pruned"):
-        return f"{record['run_id']} {record['run_status']}"
-    if status == "stopped":
-        return f"stopped: {record['trigger']}"
-    return status
+    if record.ran:
+        wall = record.wall_seconds
+        return record.run_id + (f" ({wall:.1f}s)" if wall is not None else "")
+    if record.status.started_a_run:
+        return f"{record.run_id} {record.run_status}"
+    if record.status is Status.STOPPED:
+        return f"stopped: {record.trigger}"
+    return record.status.value
 
 
 class View:
@@ -61,7 +61,7 @@ class View:
     def run_progress(self, elapsed: float, run_id: str | None = None) -> None:
         pass
 
-    def record(self, record: dict[str, Any], closest: str) -> None:
+    def record(self, record: Record, closest: str) -> None:
         pass
 
     def close(self) -> None:
@@ -90,14 +90,14 @@ class PlainView(View):
                 flush=True,
             )
 
-    def record(self, record: dict[str, Any], closest: str) -> None:
-        head = f"[it {record['iteration']}] {record['proposer']}: {_outcome(record)}"
-        if record["status"] == "ran":
-            body = f"{self.metric}={_number(record['metric'])} ({record['verdict']})"
+    def record(self, record: Record, closest: str) -> None:
+        head = f"[it {record.iteration}] {record.proposer}: {_outcome(record)}"
+        if record.ran:
+            body = f"{self.metric}={_number(record.metric)} ({record.verdict})"
         else:
-            body = record["reason"] or ""
-        tail = f"best={_number(record['best_so_far'])} spend=${record['cumulative_cost_usd']:.4f} | {closest}"
-        self.in_flight.discard(record["run_id"])
+            body = record.reason or ""
+        tail = f"best={_number(record.best_so_far)} spend=${record.cumulative_cost_usd:.4f} | {closest}"
+        self.in_flight.discard(record.run_id)
         print(f"{head} {body} | {tail}", file=self.stream, flush=True)
 
 
@@ -182,18 +182,16 @@ class RichView(View):
             row["run"] = f"{run_id} running {int(elapsed)}s"
         self._refresh()
 
-    def record(self, record: dict[str, Any], closest: str) -> None:
+    def record(self, record: Record, closest: str) -> None:
         with self.lock:
-            started = self.running.pop(record["run_id"], None) if record["run_id"] else None
-        row = dict(
-            started or self.current or {"it": str(record["iteration"]), "proposer": record["proposer"]}
-        )
+            started = self.running.pop(record.run_id, None) if record.run_id else None
+        row = dict(started or self.current or {"it": str(record.iteration), "proposer": record.proposer})
         row.update(
             run=_outcome(record),
-            metric=_number(record["metric"]),
-            verdict=record["verdict"] or ("" if record["status"] == "ran" else record["reason"] or ""),
-            best=_number(record["best_so_far"]),
-            spend=f"${record['cumulative_cost_usd']:.4f}",
+            metric=_number(record.metric),
+            verdict=record.verdict or ("" if record.ran else record.reason or ""),
+            best=_number(record.best_so_far),
+            spend=f"${record.cumulative_cost_usd:.4f}",
         )
         self.rows.append(row)
         if started is None:

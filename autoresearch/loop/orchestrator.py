@@ -3,64 +3,53 @@
 Each iteration: check the stopping triggers, ask the proposer (the first experiment is the
 family's baseline, with no proposer call), validate and deduplicate the proposal, run it,
 judge it, record it. Exactly one record per iteration goes to proposals.jsonl, whatever
-happened; the loop state is a fold over those records (:mod:`autoresearch.loop.campaign`).
+happened; the loop state is a fold over those records (:mod:`autoresearch.campaign`), written
+through one path (:class:`autoresearch.campaign.CampaignWriter`).
 
-Runs in flight (``workers`` > 1): the main thread proposes, validates and records; each run is
-supervised by a thread of its own (or a Ray task) and reports back through a queue. An iteration
-number is given when the proposal is made; its record is appended when its run ends, so records
-are in completion order. The proposer sees the runs in flight (``ProposerContext.running``) and
-dedup covers them. When a trigger fires, no new proposal is made; the runs in flight finish and
-are recorded, then the stop record is written (with the highest iteration number). With
-``workers`` = 1 each run finishes before the next proposal, as before.
+Runs in flight (``workers`` > 1, :mod:`autoresearch.loop.scheduler`): the main thread proposes,
+validates and records; each run is supervised by a thread of its own (or a Ray task). An
+iteration number is given when the proposal is made; its record is appended when its run ends,
+so records are in completion order. The proposer sees the runs in flight
+(``ProposerContext.running``) and dedup covers them. When a trigger fires, no new proposal is
+made; the runs in flight finish and are recorded, then the stop record is written (with the
+highest iteration number). With ``workers`` = 1 each run finishes before the next proposal.
 
-Durability: before a run starts, the iteration's record-to-be is written atomically to
-``runs/<run_id>/intent.json``. After a crash at any moment, ``--resume`` finds every intent
-without a proposals record and finishes that iteration: it kills what is left of the run
-(every process carrying its run directory, wherever it moved: autoresearch.loop.tracking), then
-adopts its outcome from ``result.json`` (the runner's verdict) or from the run's line in
-runs.jsonl (train.py finished, with the intent's config and seed), or records it as timed out
-(still running past its deadline, or killed there by its watchdog), or else marks the run dir
-interrupted and re-runs the same configuration under a new run id (``<run_id>-r2``, ...),
-listing the lost attempts in ``interrupted_run_ids``. No iteration and no run id is recorded twice.
+Durability: before a run starts, its intent (the record-to-be) is written atomically to
+``runs/<run_id>/intent.json``; after a crash at any moment ``--resume`` finishes every intent
+without a record (:mod:`autoresearch.loop.recovery`).
 """
 
 from __future__ import annotations
 
 import json
-import queue
-import threading
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from autoresearch.campaign import (
+    BASELINE_PROPOSER,
+    Campaign,
+    CampaignError,
+    CampaignState,
+    CampaignWriter,
+    Intent,
+    Record,
+    Status,
+)
+from autoresearch.campaign.store import RUNNING_BEST, running_best_entry
 from autoresearch.executors import Executor
 from autoresearch.family import Family, search_view
-from autoresearch.journal import Journal, read_json, repair_torn_tail, write_json_atomic
-from autoresearch.loop.campaign import (
-    BASELINE_PROPOSER,
-    RUN_STATUSES,
-    CampaignError,
-    CampaignPaths,
-    CampaignState,
-    new_record,
-    now,
-)
+from autoresearch.journal import repair_torn_tail
+from autoresearch.loop import recovery
+from autoresearch.loop.asking import Halt, ask
 from autoresearch.loop.context import build_context, summarize_random_arm
 from autoresearch.loop.early_stop import EarlyStopper
 from autoresearch.loop.live import View
-from autoresearch.loop.runner import (
-    RunResult,
-    load_result,
-    logged_run,
-    run_experiment,
-    run_prepare_check,
-    stop_orphaned_run,
-)
-from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, spend_trigger, stop_gate
-from autoresearch.loop.verdicts import run_verdict
-from autoresearch.proposers.base import FatalAPIError, Proposal, Proposer, RunOutcome, projected_cost
-from autoresearch.proposers.retry import RetryBudgetSpent, call_with_retries
+from autoresearch.loop.runner import RunResult, run_experiment, run_prepare_check
+from autoresearch.loop.scheduler import Scheduler
+from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, stop_gate
+from autoresearch.proposers.base import Proposal, Proposer, RunOutcome
 from autoresearch.space import ValidationError, canonical_key
 
 BASELINE_HYPOTHESIS = "the family's baseline configuration (the shared first experiment of every campaign)"
@@ -75,7 +64,6 @@ class LoopSettings:
     random_arm: Path | None = None
     workers: int = 1  # experiments in flight at once
     early_stop: str = "none"  # none, median or asha (autoresearch.loop.early_stop)
-    executor: Executor | None = None  # None: runs supervised by threads of this process
 
 
 @dataclass(frozen=True)
@@ -88,7 +76,7 @@ class Outcome:
     reason: str
     iterations: int
     n_runs_ok: int
-    best: dict[str, Any] | None
+    best: Record | None
 
 
 def _jsonable(value: Any) -> Any:
@@ -104,6 +92,9 @@ def run_id_for(iteration: int, attempt: int = 1) -> str:
 
 
 class Orchestrator:
+    """One campaign's loop. ``executor`` (a Ray executor) runs each experiment as a remote task;
+    without one, runs are supervised by threads of this process."""
+
     def __init__(
         self,
         family: Family,
@@ -111,44 +102,46 @@ class Orchestrator:
         campaign_dir: str | Path,
         settings: LoopSettings,
         view: View | None = None,
+        executor: Executor | None = None,
     ):
         self.family = family
         self.proposer = proposer
-        self.paths = CampaignPaths(Path(campaign_dir))
         self.settings = settings
         self.view = view or View()
+        self.executor = executor
+        self.campaign = Campaign(campaign_dir)
+        self.state = CampaignState(family)  # the fold of the records, once _open has read them
+        self.writer = CampaignWriter(self.campaign, self.state, self.elapsed)
+        self.scheduler = Scheduler(settings.workers, self._execute)
+        self.registry: dict[str, Any] = {}  # the campaign's copy of family.json
+        self.stopper: EarlyStopper | None = None
+        self.random_summary: str | None = None
+        self._elapsed_base, self._started = 0.0, time.monotonic()
 
     # ----- set-up and resume -------------------------------------------------------------
 
     def _open(self) -> None:
-        paths = self.paths
-        paths.runs_dir.mkdir(parents=True, exist_ok=True)
-        if paths.family_json.exists():
-            self.registry = read_json(paths.family_json)
-            name = self.registry.get("name") if isinstance(self.registry, dict) else None
-            if name != self.family.name:  # a one-line error, with its repair, not a traceback
-                what = (
-                    f"belongs to family {name!r}, not {self.family.name!r}" if name else "is no family.json"
-                )
-                raise CampaignError(
-                    f"{paths.family_json} {what}; delete it: the loop rewrites it from the records"
-                )
-        else:
-            # The campaign's own copy: its best is this campaign's running best, not the family's.
-            self.registry = search_view(self.family.registry)
-            write_json_atomic(paths.family_json, self.registry)
-        self.journal = Journal(paths.proposals)
-        repair_torn_tail(paths.runs_log)
-        self.state = CampaignState.from_records(self.family, self.journal.read())
+        campaign = self.campaign
+        campaign.paths.runs_dir.mkdir(parents=True, exist_ok=True)
+        registry = campaign.registry()
+        if registry is None:
+            # The campaign's own copy: no sealed-split number, and its own running best.
+            registry = search_view(self.family.registry)
+            campaign.write_registry(registry)
+        name = registry.get("name") if isinstance(registry, dict) else None
+        if name != self.family.name:  # a one-line error, with its repair, not a traceback
+            what = f"belongs to family {name!r}, not {self.family.name!r}" if name else "is no family.json"
+            raise CampaignError(
+                f"{campaign.paths.family_json} {what}; delete it: the loop rewrites it from the records"
+            )
+        self.registry = registry
+        repair_torn_tail(campaign.paths.runs_log)
+        self.state = campaign.state(self.family)
+        self.writer = CampaignWriter(campaign, self.state, self.elapsed)
         for record in self.state.records:
-            if record["status"] in RUN_STATUSES:
+            if record.status.started_a_run:
                 self.proposer.tell(self._run_outcome(record))
         self._sync_best()
-        self._in_flight: dict[str, dict[str, Any]] = {}  # run_id -> intent, in launch order
-        self._done: queue.Queue[tuple[dict[str, Any], RunResult | BaseException]] = queue.Queue()
-        self._threads: list[threading.Thread] = []
-        self._cancel = threading.Event()  # set when the loop unwinds: every run in flight is killed
-        self.stopper = None
         if self.settings.early_stop != "none":
             self.stopper = EarlyStopper(self.settings.early_stop, self.family.direction, self.state.records)
         self._elapsed_base, self._started = self.state.elapsed_s, time.monotonic()
@@ -160,80 +153,23 @@ class Orchestrator:
         return self._elapsed_base + time.monotonic() - self._started
 
     def _sync_best(self) -> None:
-        best = self.state.best
-        entry = None
-        if best is not None:
-            entry = {
-                "config": best["config"],
-                "metric": best["metric"],
-                "std": None,
-                "n": 1,
-                "source": f"loop:{best['run_id']}",
-                "run_id": best["run_id"],
-                "iteration": best["iteration"],
-            }
-        if self.registry.get("best") != entry:
-            self.registry = {**self.registry, "best": entry}
-            write_json_atomic(self.paths.family_json, self.registry)
+        entry = running_best_entry(self.state.best)
+        if self.registry.get(RUNNING_BEST) != entry:
+            self.registry = {**self.registry, RUNNING_BEST: entry}
+            self.campaign.write_registry(self.registry)
 
-    def _pending_intents(self) -> list[dict[str, Any]]:
-        """Intents of runs that started but whose iteration was never recorded."""
-        pending = []
-        for run_dir in sorted(self.paths.runs_dir.iterdir()):
-            if (run_dir / "intent.json").exists() and not (run_dir / "interrupted.json").exists():
-                intent = read_json(run_dir / "intent.json")
-                if intent["run_id"] not in self.state.run_ids:
-                    pending.append(intent)
-        return pending
-
-    def _adopt(self, intent: dict[str, Any]) -> RunResult | None:
-        """The outcome of an in-flight run whose supervisor died, if it finished or ran out of time
-        (past its deadline at resume, or killed there by its watchdog); None otherwise."""
-        run_id = intent["run_id"]
-        run_dir = self.paths.run_dir(run_id)
-        leftover = stop_orphaned_run(run_dir)  # first: nothing of it may write beside a re-run
-        result = load_result(run_dir)
-        if result is not None:
-            return result
-        logged = logged_run(self.family, self.paths.runs_log, run_id, intent["config"], intent["seed"])
-        if logged is not None:
-            return logged
-        if leftover.overdue is not None:
-            return RunResult("timeout", run_id, None, leftover.overdue, None, None)
-        return None
-
-    def _mark_interrupted(self, intent: dict[str, Any], why: str) -> None:
-        write_json_atomic(
-            self.paths.run_dir(intent["run_id"]) / "interrupted.json", {"time": now(), "reason": why}
-        )
-
-    def _recover(self) -> list[dict[str, Any]]:
-        """Finish every in-flight iteration from its outcome; return the intents that must be re-run.
-
-        Several intents of one iteration are pending only after a crash during a re-run: its
-        latest attempt is the live one; any other, or one whose iteration is recorded, is superseded.
-        """
-        live: dict[int, dict[str, Any]] = {}
-        superseded = []
-        for intent in self._pending_intents():
-            if intent["iteration"] in self.state.recorded:
-                superseded.append(intent)
-                continue
-            other = live.get(intent["iteration"])
-            if other is not None:
-                older, intent = sorted((other, intent), key=lambda i: len(i["interrupted_run_ids"]))
-                superseded.append(older)
-            live[intent["iteration"]] = intent
+    def _recover(self) -> list[Intent]:
+        """Finish every in-flight iteration from its outcome; return the intents that must be re-run."""
+        live, superseded = recovery.pending(self.campaign, self.state)
         for intent in superseded:
-            stop_orphaned_run(self.paths.run_dir(intent["run_id"]))
-            self._mark_interrupted(intent, "superseded by a later attempt or record of its iteration")
+            recovery.retire(self.campaign, intent, "superseded by a later attempt or record of its iteration")
         reruns = []
-        for iteration in sorted(live):
-            result = self._adopt(live[iteration])
+        for intent in live:
+            result = recovery.adopt(self.campaign, self.family, intent)
             if result is None:
-                reruns.append(live[iteration])
+                reruns.append(intent)
             else:
-                self._finish_run(live[iteration], result)
+                self._finish_run(intent, result)
         return reruns
 
     # ----- the loop ----------------------------------------------------------------------
@@ -249,56 +185,57 @@ class Orchestrator:
         state, budgets = self.state, self.settings.budgets
         if state.finished:
             trigger = first_trigger(state, budgets, self.elapsed())
-            if state.last["status"] == "stop_accepted" or trigger is not None:
-                return self._outcome("already_finished", state.last["trigger"], state.last["reason"])
+            if state.last.status is Status.STOP_ACCEPTED or trigger is not None:
+                return self._outcome("already_finished", state.last.trigger, state.last.reason)
         reruns = self._recover()
         problem = run_prepare_check(self.family)
         if problem is not None:
             for intent in reruns:
-                self._mark_interrupted(intent, "not re-run: prepare.py --check failed on resume")
+                self.campaign.mark_interrupted(
+                    intent.run_id, "not re-run: prepare.py --check failed on resume"
+                )
             self._stop("prepare_check", problem)
             return self._outcome("prepare_failed", "prepare_check", problem)
         try:
             for intent in reruns:
                 self._rerun(intent)
             while True:
-                self._collect_finished()
+                for done in self.scheduler.finished():
+                    self._finish_run(*done)
                 trigger = first_trigger(state, budgets, self.elapsed())
                 if trigger is not None:
                     self._drain()  # no new proposal; the runs in flight finish and are recorded first
                     trigger = first_trigger(state, budgets, self.elapsed()) or trigger
                     self._stop(trigger.name, trigger.message)
                     return self._outcome("stopped", trigger.name, trigger.message)
-                if self._in_flight and (len(self._in_flight) >= self.settings.workers or self._caps_taken()):
-                    self._collect(block=True)
+                if self.scheduler.in_flight and (self.scheduler.full or self._caps_taken()):
+                    self._finish_run(*self.scheduler.collect(block=True))
                     continue
                 before = state.last
                 self._iteration()
                 if state.last is not before and state.finished:  # a stop record of this session
-                    return self._outcome(state.last["status"], state.last["trigger"], state.last["reason"])
+                    last = state.last
+                    return self._outcome(last.status.value, last.trigger, last.reason)
         except BaseException:
-            self._cancel.set()  # Ctrl-C, SIGTERM or a bug: kill the runs in flight, then unwind
-            for thread in self._threads:
-                thread.join()
+            self.scheduler.abort()  # Ctrl-C, SIGTERM or a bug: kill the runs in flight, then unwind
             raise
 
     def _caps_taken(self) -> bool:
         """Whether the runs in flight, counted as iterations and as successes, already fill
         max_iters or max_runs: then the loop waits for them instead of proposing more."""
-        b, n = self.settings.budgets, len(self._in_flight)
+        b, n = self.settings.budgets, len(self.scheduler.in_flight)
         return (b.max_iters is not None and self.state.iterations + n >= b.max_iters) or (
             b.max_runs is not None and self.state.n_runs_ok + n >= b.max_runs
         )
 
     def _next_iteration(self) -> int:
-        return max([self.state.next_iteration - 1, *(i["iteration"] for i in self._in_flight.values())]) + 1
+        in_flight = (intent.iteration for intent in self.scheduler.in_flight.values())
+        return max([self.state.next_iteration - 1, *in_flight]) + 1
 
     def _stop(self, trigger: str, reason: str) -> None:
         self._drain()
         name = self.settings.proposer_name
-        self._commit(
-            self._record(self._next_iteration(), name, status="stopped", trigger=trigger, reason=reason)
-        )
+        self._shown(self.writer.append_stop(self._next_iteration(), name, trigger, reason))
 
     def _outcome(self, status: str, trigger: str | None, reason: str) -> Outcome:
         s = self.state
@@ -308,54 +245,36 @@ class Orchestrator:
         """The experiments in flight, as the proposer is shown them."""
         return tuple(
             {
-                "iteration": i["iteration"],
-                "run_id": i["run_id"],
-                "overrides": i["overrides"],
-                "config": i["config"],
-                "hypothesis": ((i["proposal"] or {}).get("annotation") or {}).get("hypothesis"),
+                "iteration": i.iteration,
+                "run_id": i.run_id,
+                "overrides": i.overrides,
+                "config": i.config,
+                "hypothesis": i.hypothesis,
             }
-            for i in self._in_flight.values()
+            for i in self.scheduler.in_flight.values()
         )
 
     def _ask(self, iteration: int) -> tuple[str, Proposal | None]:
-        """(proposer name, proposal); the proposal is None when the campaign was stopped instead
-        (the next call would pass the spend cap, or the API refused the key or the spend)."""
+        """(proposer name, proposal); the proposal is None when the campaign was stopped instead."""
         state = self.state
-        if state.n_runs_attempted == 0 and not self._in_flight:
+        if state.n_runs_attempted == 0 and not self.scheduler.in_flight:
             return BASELINE_PROPOSER, Proposal(kind="propose", annotation={"hypothesis": BASELINE_HYPOTHESIS})
-        blind = self.settings.blind
-        budget = closest_trigger(state, self.settings.budgets, self.elapsed(), blind)
+        blind, budgets = self.settings.blind, self.settings.budgets
         context = build_context(
             state,
             registry=self.registry,
             blind=blind,
-            extra_warnings=(f"Budget: {budget}",),
+            extra_warnings=(f"Budget: {closest_trigger(state, budgets, self.elapsed(), blind)}",),
             random_arm_summary=self.random_summary,
         )
         context = replace(context, iteration=iteration, running=self._running())
-        name = self.settings.proposer_name
-        budgets = self.settings.budgets
-        trigger = spend_trigger(state, budgets, projected_cost(self.proposer, context))
-        if trigger is not None:
-            self._stop(trigger.name, trigger.message)
-            return name, None
         seconds_left = None if budgets.max_seconds is None else budgets.max_seconds - self.elapsed()
-        try:
-            # transport faults are retried here, within the wall-clock budget, and noted, not failed
-            proposal = call_with_retries(lambda: self.proposer.propose(context), seconds_left=seconds_left)
-        except FatalAPIError as err:  # no retry heals a bad key or a spent account
-            self._stop(f"api_{err.kind}", str(err))
+        answer = ask(self.proposer, context, state, budgets, seconds_left)
+        name = self.settings.proposer_name
+        if isinstance(answer, Halt):
+            self._stop(answer.trigger, answer.reason)
             return name, None
-        except RetryBudgetSpent as err:
-            self._stop("wall_clock", str(err))
-            return name, None
-        except Exception as err:  # a proposer bug or API outage is an invalid iteration, not a crash
-            return name, Proposal(kind="invalid", error=f"the proposer raised {type(err).__name__}: {err}")
-        if not isinstance(proposal, Proposal):
-            return name, Proposal(
-                kind="invalid", error=f"the proposer returned {type(proposal).__name__}, not a Proposal"
-            )
-        return name, proposal
+        return name, answer
 
     def _iteration(self) -> None:
         state = self.state
@@ -366,7 +285,7 @@ class Orchestrator:
             return
         self.view.proposal(iteration, proposer, proposal)
         usage = proposal.usage
-        base = {
+        asked = {
             "proposal": {
                 "kind": _jsonable(proposal.kind),
                 "overrides": _jsonable(proposal.overrides),
@@ -380,30 +299,33 @@ class Orchestrator:
                 },
                 "notes": _jsonable(proposal.notes),
             },
-            "cost_usd": proposal.usage.cost_usd,
-            "input_tokens": proposal.usage.input_tokens,
-            "output_tokens": proposal.usage.output_tokens,
+            "cost_usd": usage.cost_usd,
+            "input_tokens": usage.input_tokens,
+            "output_tokens": usage.output_tokens,
         }
 
-        def record(status: str, reason: str, **fields: Any) -> None:
-            self._commit(self._record(iteration, proposer, status=status, reason=reason, **base, **fields))
+        def refuse(status: Status, reason: str, **fields: Any) -> None:
+            self._shown(self.writer.append_refusal(iteration, proposer, status, reason, **asked, **fields))
 
         if proposal.kind == "stop":
             annotation = proposal.annotation if isinstance(proposal.annotation, dict) else {}
             accepted, why = stop_gate(annotation, state)
             if accepted:
                 self._drain()  # the stop record is the last: the runs in flight are recorded first
-                record("stop_accepted", why, trigger="stop_research")
+                refuse(Status.STOP_ACCEPTED, why, trigger="stop_research")
             else:
-                record("stop_rejected", why)
+                refuse(Status.STOP_REJECTED, why)
             return
         if proposal.kind != "propose":
-            record("invalid", proposal.error or f"the proposer returned a proposal of kind {proposal.kind!r}")
+            refuse(
+                Status.INVALID,
+                proposal.error or f"the proposer returned a proposal of kind {proposal.kind!r}",
+            )
             return
         try:
             overrides = self.family.space.validate(proposal.overrides)
         except ValidationError as err:
-            record("invalid", str(err))
+            refuse(Status.INVALID, str(err))
             return
         config = {**state.current_values(), **overrides}
         if not overrides and proposer != BASELINE_PROPOSER:
@@ -411,172 +333,84 @@ class Orchestrator:
         else:
             why = state.seen_at(overrides, config) or self._seen_in_flight(overrides, config)
         if why is not None:
-            record("invalid", why, overrides=overrides, config=config)
+            refuse(Status.INVALID, why, overrides=overrides, config=config)
             return
-        intent = self._record(
-            iteration,
-            proposer,
-            overrides=overrides,
-            config=config,
+        intent = Intent(
+            iteration=iteration,
+            proposer=proposer,
             run_id=run_id_for(iteration),
             seed=self.family.default_seed,
+            config=config,
+            overrides=overrides,
             interrupted_run_ids=[],
-            **base,
+            **asked,
         )
         self._start(intent)
 
     def _seen_in_flight(self, overrides: dict[str, Any], config: dict[str, Any]) -> str | None:
         """Why (overrides, config) repeats an experiment in flight, or None (dedup covers them too)."""
-        for intent in self._in_flight.values():
-            if canonical_key(overrides) == canonical_key(intent["overrides"]):
-                return f"this override map is running now, at iteration {intent['iteration']}"
-            if canonical_key(config) == canonical_key(intent["config"]):
-                return f"the resulting configuration is running now, at iteration {intent['iteration']}"
+        for intent in self.scheduler.in_flight.values():
+            if canonical_key(overrides) == canonical_key(intent.overrides):
+                return f"this override map is running now, at iteration {intent.iteration}"
+            if canonical_key(config) == canonical_key(intent.config):
+                return f"the resulting configuration is running now, at iteration {intent.iteration}"
         return None
 
-    def _start(self, intent: dict[str, Any], supersedes: dict[str, Any] | None = None) -> None:
-        run_dir = self.paths.run_dir(intent["run_id"])
-        run_dir.mkdir(parents=True, exist_ok=True)  # a dir left empty by a crash before its intent is reused
-        if (run_dir / "intent.json").exists():
-            raise CampaignError(f"{run_dir} already holds a run")
-        write_json_atomic(run_dir / "intent.json", intent)
+    def _start(self, intent: Intent, supersedes: Intent | None = None) -> None:
+        self.campaign.write_intent(intent)
         if supersedes is not None:  # only once the new attempt is durable
-            self._mark_interrupted(supersedes, f"the loop died during this run; re-run as {intent['run_id']}")
-        self.view.run_started(intent["run_id"])
-        self._launch(intent)
+            why = f"the loop died during this run; re-run as {intent.run_id}"
+            self.campaign.mark_interrupted(supersedes.run_id, why)
+        self.view.run_started(intent.run_id)
+        self.scheduler.launch(intent)
 
-    def _launch(self, intent: dict[str, Any]) -> None:
-        """Put the run in flight: in this thread with one worker, else on a thread of its own."""
-        self._in_flight[intent["run_id"]] = intent
-        if self.settings.workers == 1:
-            self._done.put((intent, self._execute(intent)))
-            return
-        self._threads = [t for t in self._threads if t.is_alive()]
-        thread = threading.Thread(target=self._supervise, args=(intent,), name=intent["run_id"], daemon=True)
-        self._threads.append(thread)
-        thread.start()
-
-    def _supervise(self, intent: dict[str, Any]) -> None:
-        try:
-            outcome: RunResult | BaseException = self._execute(intent)
-        except BaseException as err:  # re-raised in the main thread
-            outcome = err
-        self._done.put((intent, outcome))
-
-    def _execute(self, intent: dict[str, Any]) -> RunResult:
-        run_id = intent["run_id"]
+    def _execute(self, intent: Intent) -> RunResult:
+        run_id = intent.run_id
         task = {
             "family": self.family,
-            "config": intent["config"],
+            "config": intent.config,
             "run_id": run_id,
-            "seed": intent["seed"],
-            "run_dir": self.paths.run_dir(run_id),
-            "runs_log": self.paths.runs_log,
+            "seed": intent.seed,
+            "run_dir": self.campaign.paths.run_dir(run_id),
+            "runs_log": self.campaign.paths.runs_log,
             "timeout": self.settings.timeout_per_run,
         }
-        executor = self.settings.executor
-        if executor is not None and executor.name == "ray":
-            return executor.map(_run_task, [task], cancel=self._cancel)[0]  # cancelled as the loop unwinds
+        cancel = self.scheduler.cancel  # set as the loop unwinds: every run in flight is killed
+        if self.executor is not None and self.executor.name == "ray":
+            return self.executor.map(_run_task, [task], cancel=cancel)[0]
         return run_experiment(
             **task,
             on_progress=lambda elapsed: self.view.run_progress(elapsed, run_id),
             on_report=self.stopper.start(run_id) if self.stopper else None,
-            cancel=self._cancel,
+            cancel=cancel,
         )
 
-    def _collect(self, block: bool) -> None:
-        """Record one finished run; raises queue.Empty when none has finished and not ``block``."""
-        while True:
-            try:
-                intent, outcome = self._done.get(timeout=0.2) if block else self._done.get_nowait()
-                break
-            except queue.Empty:
-                if not block:
-                    raise
-        del self._in_flight[intent["run_id"]]
-        if isinstance(outcome, BaseException):
-            raise outcome
-        self._finish_run(intent, outcome)
-
-    def _collect_finished(self) -> None:
-        try:
-            while True:
-                self._collect(block=False)
-        except queue.Empty:
-            pass
-
     def _drain(self) -> None:
-        while self._in_flight:
-            self._collect(block=True)
+        for done in self.scheduler.drain():
+            self._finish_run(*done)
 
-    def _rerun(self, intent: dict[str, Any]) -> None:
-        lost = [*intent["interrupted_run_ids"], intent["run_id"]]
-        retry = {
-            **intent,
-            "run_id": run_id_for(intent["iteration"], len(lost) + 1),
-            "interrupted_run_ids": lost,
-        }
+    def _rerun(self, intent: Intent) -> None:
+        lost = [*(intent.interrupted_run_ids or []), intent.run_id]
+        retry = replace(intent, run_id=run_id_for(intent.iteration, len(lost) + 1), interrupted_run_ids=lost)
         self._start(retry, supersedes=intent)
 
-    def _finish_run(self, intent: dict[str, Any], result: RunResult) -> None:
-        state, family = self.state, self.family
-        fields: dict[str, Any] = {
-            "run_status": result.status,
-            "wall_seconds": result.wall_seconds,
-            "returncode": result.returncode,
-            "run_id": result.run_id,
-        }
-        if result.progress:
-            fields["progress"] = result.progress
-        if result.ok:
-            feasible = family.is_feasible(result.record)
-            judged = run_verdict(
-                result.metric,
-                feasible=feasible,
-                is_baseline=intent["proposer"] == BASELINE_PROPOSER,
-                prior_best=state.best_metric,
-                direction=family.direction,
-                sigma=family.sigma,
-            )
-            fields.update(
-                status="ran", metric=result.metric, feasible=feasible, record=result.record, verdict=judged
-            )
-        elif result.status == "early_stopped":  # never a result: no metric, never best, not a failure
-            fields.update(status="pruned", reason=result.reason)
-        else:
-            fields.update(status="failed", reason=result.reason)
-        record = {**intent, **fields}
-        record["best_so_far"] = state.best_after(record["metric"], record["feasible"])
-        self._commit(record)
+    def _finish_run(self, intent: Intent, result: RunResult) -> None:
+        record = self.writer.append_run(intent, result)
+        self._shown(record)
         if self.stopper is not None:
             self.stopper.finish(record)
         self.proposer.tell(self._run_outcome(record))
         self._sync_best()
 
-    def _run_outcome(self, record: dict[str, Any]) -> RunOutcome:
+    def _shown(self, record: Record) -> None:
+        self.view.record(record, closest_trigger(self.state, self.settings.budgets, self.elapsed()))
+
+    def _run_outcome(self, record: Record) -> RunOutcome:
         """What the proposer is told of a run record (a failed or stopped run has no metric)."""
-        if record["status"] != "ran":
-            return RunOutcome(record["config"], None, False)
-        constraints = self.family.constraints(record["record"])
-        return RunOutcome(record["config"], record["metric"], bool(record["feasible"]), constraints)
-
-    def _record(self, iteration: int, proposer: str, **fields: Any) -> dict[str, Any]:
-        return new_record(
-            iteration=iteration, proposer=proposer, best_so_far=self.state.best_metric, **fields
-        )
-
-    def _commit(self, record: dict[str, Any]) -> None:
-        """Append one iteration's record (durably) and fold it into the state."""
-        state = self.state
-        record["time"] = now()
-        record["cost_usd"] = record["cost_usd"] or 0.0
-        record["input_tokens"] = record["input_tokens"] or 0
-        record["output_tokens"] = record["output_tokens"] or 0
-        record["cumulative_cost_usd"] = state.cost_usd + record["cost_usd"]
-        record["elapsed_s"] = round(self.elapsed(), 3)
-        self.journal.append(record)
-        state.apply(record)
-        self.view.record(record, closest_trigger(state, self.settings.budgets, self.elapsed()))
+        if not record.ran:
+            return RunOutcome(record.config, None, False)
+        constraints = self.family.constraints(record.final_metric)
+        return RunOutcome(record.config, record.metric, bool(record.feasible), constraints)
 
 
 def _run_task(task: dict[str, Any]) -> RunResult:

@@ -26,10 +26,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from autoresearch.campaign import (
+    Campaign,
+    CampaignError,
+    CampaignMeta,
+    CampaignPaths,
+    Record,
+    count_iterations,
+    portable_path,
+)
 from autoresearch.executors import Executor
 from autoresearch.family import Family
-from autoresearch.journal import JournalError, read_json, read_jsonl, write_json_atomic
-from autoresearch.loop.campaign import CampaignMeta, CampaignPaths, count_iterations, portable_path
+from autoresearch.journal import JournalError, read_json, write_json_atomic
 
 GROUP_FILE = "repeats.json"
 REPEAT_PREFIX = "repeat-"
@@ -165,21 +173,20 @@ def plan_group(
     return Group(root, meta, tasks)
 
 
-def _records(task: RepeatTask) -> list[dict[str, Any]]:
-    """The repeat's proposals.jsonl; [] when unreadable (its own process then says why)."""
+def _records(task: RepeatTask) -> list[Record]:
+    """The repeat's records; [] when unreadable (its own process then says why)."""
     try:
-        return read_jsonl(CampaignPaths(Path(task.root)).proposals)
-    except JournalError:
+        return Campaign(task.root).records()
+    except (CampaignError, JournalError):
         return []
 
 
 def _outcome(task: RepeatTask, returncode: int, before: int, last_line: str) -> dict[str, Any]:
     """What one repeat's process did, from its exit code and its campaign directory."""
-    paths = CampaignPaths(Path(task.root))
     records = _records(task)
-    last = records[-1] if records else {}
-    best = read_json(paths.family_json).get("best") if paths.family_json.exists() else None
-    status = {0: last.get("status"), 1: "prepare_failed", 130: "interrupted"}.get(returncode, "error")
+    last = records[-1] if records else None
+    best = Campaign(task.root).running_best()
+    status = {0: last and last.status.value, 1: "prepare_failed", 130: "interrupted"}.get(returncode, "error")
     if returncode == 0 and len(records) == before:
         status = "already_finished"
     return {
@@ -188,8 +195,8 @@ def _outcome(task: RepeatTask, returncode: int, before: int, last_line: str) -> 
         "seed": task.meta.settings["seed"],
         "returncode": returncode,
         "status": status,
-        "trigger": last.get("trigger"),
-        "reason": last_line if status == "error" else last.get("reason"),
+        "trigger": last and last.trigger,
+        "reason": last_line if status == "error" else last and last.reason,
         "iterations": count_iterations(records),
         "best": best and {"metric": best["metric"], "run_id": best["run_id"]},
     }

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from autoresearch.loop.campaign import CampaignState
+from autoresearch.campaign import CampaignState
 from autoresearch.loop.verdicts import plateau
 
 GATE_MIN_EXPERIMENTS = 6
@@ -31,6 +31,7 @@ class Budgets:
     max_cost_usd: float | None = None
     plateau_window: int = 6
     plateau_kappa: float = 1.0
+    stop_at_target: bool = True  # False: a best-of-N (the audit's random arm) runs on past the target
 
 
 @dataclass(frozen=True)
@@ -51,10 +52,10 @@ def first_trigger(state: CampaignState, budgets: Budgets, elapsed_s: float) -> T
         return Trigger("wall_clock", f"wall-clock budget spent ({elapsed_s:.0f} s > {b.max_seconds:g} s)")
     if b.max_runs is not None and state.n_runs_ok >= b.max_runs:
         return Trigger("max_runs", f"{state.n_runs_ok} successful runs reached the cap of {b.max_runs}")
-    if state.target_met:
+    if b.stop_at_target and state.target_met:
         return Trigger(
             "target_reached",
-            f"best {state.best_metric:g} reached the target {state.family.target:g} (run {state.best['run_id']})",
+            f"best {state.best_metric:g} reached the target {state.family.target:g} (run {state.best.run_id})",
         )
     if b.max_iters is not None and state.iterations >= b.max_iters:
         return Trigger("max_iters", f"{state.iterations} iterations reached the cap of {b.max_iters}")

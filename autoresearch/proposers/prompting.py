@@ -171,7 +171,8 @@ def render_prompt(context: ProposerContext) -> Prompt:
     """The user message for one turn, in its cacheable parts."""
     metric = str(context.registry.get("metric", "metric"))
     program_file = "program_blind.md" if context.blind else "program.md"
-    registry = {k: v for k, v in context.registry.items() if k != "best"}  # best moves: it is in the tail
+    # the running best moves every turn: it is in the tail
+    registry = {k: v for k, v in context.registry.items() if k != "campaign_best"}
     stable = [
         f"{PROGRAM} ({program_file})\n{context.program.strip()}",
         f"{REGISTRY}\n```json\n{_json(registry, indent=2)}\n```",

@@ -4,7 +4,9 @@ What is checked: campaign.json and the campaign's family.json are readable JSON 
 family directory loads; proposals.jsonl holds one whole JSON record per line with iterations
 1, 2, 3, ... exactly once each (in any order: with ``loop --workers K`` records follow the order
 runs finish; a number held by a run still in flight, i.e. an intent without a record, may be
-missing), every run it records has its run directory; runs.jsonl has whole
+missing), every run it records has its run directory, unless the campaign is published: a
+campaign committed without its ``runs/`` (patched train.py copies, logs, weights) is a valid
+campaign, and check says so instead of reporting each run directory missing; runs.jsonl has whole
 JSON lines, each run logged once and started by a proposal or an intent of this campaign, and every
 run recorded as ran logged there; audit.json, where the audit wrote one, is a JSON object whose
 step parts are objects with a known status. A torn last line (a crash mid-append) is reported too,
@@ -19,15 +21,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from autoresearch.campaign.meta import CampaignMeta
+from autoresearch.campaign.paths import CampaignError, CampaignPaths
+from autoresearch.campaign.records import Status, parse_status
+from autoresearch.campaign.store import Campaign
 from autoresearch.family import FamilyError
-from autoresearch.loop.campaign import (
-    RUN_STATUSES,
-    STATUSES,
-    TERMINAL,
-    CampaignError,
-    CampaignMeta,
-    CampaignPaths,
-)
+from autoresearch.journal import JournalError
+
+PUBLISHED = "published without its run directories (runs/): the records and logs carry the results"
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,15 @@ def _read_object(path: Path, name: str) -> tuple[dict[str, Any] | None, Problem 
     return obj, None
 
 
-def _check_family(meta: CampaignMeta, root: Path) -> list[Problem]:
+def _check_family(meta: CampaignMeta, root: Path, notes: list[str]) -> list[Problem]:
+    """The family's problems; for a published campaign a family not in this checkout is a note (its
+    records carry the results; its audit needs the family back)."""
+    if (
+        not any(path.is_dir() for path in meta.family_paths(root))
+        and not CampaignPaths(root).runs_dir.is_dir()
+    ):
+        notes.append(f"its family ({meta.family}) is not here: restore it to audit or resume the campaign")
+        return []
     try:
         meta.open_family(root)
     except CampaignError as err:
@@ -92,7 +101,7 @@ def _check_family(meta: CampaignMeta, root: Path) -> list[Problem]:
     return []
 
 
-def _check_meta(paths: CampaignPaths) -> list[Problem]:
+def _check_meta(paths: CampaignPaths, notes: list[str]) -> list[Problem]:
     """The problems of campaign.json, of its family and of the campaign's family.json."""
     raw, problem = _read_object(paths.campaign_json, "campaign.json")
     if raw is not None:
@@ -102,7 +111,7 @@ def _check_meta(paths: CampaignPaths) -> list[Problem]:
             problem = Problem(
                 "campaign.json", str(err).removeprefix("campaign.json: "), "restore it from a backup"
             )
-    problems = [problem] if problem else _check_family(meta, paths.root)
+    problems = [problem] if problem else _check_family(meta, paths.root, notes)
     if paths.family_json.exists():
         registry, problem = _read_object(paths.family_json, "family.json")
         family_name = (raw or {}).get("family_name")
@@ -157,7 +166,8 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
                 )
             )
             continue
-        if record.get("status") not in STATUSES:
+        status = parse_status(record.get("status"))
+        if status is None:
             problems.append(
                 Problem(
                     where,
@@ -169,8 +179,11 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
         first_line[iteration], by_iteration[iteration] = lineno, record
         records.append(record)
         run_id = record.get("run_id")
-        if record.get("status") in RUN_STATUSES and not (
-            isinstance(run_id, str) and paths.run_dir(run_id).is_dir()
+        if (
+            status is not None
+            and status.started_a_run
+            and paths.runs_dir.is_dir()  # a published campaign has none at all
+            and not (isinstance(run_id, str) and paths.run_dir(run_id).is_dir())
         ):
             problems.append(
                 Problem(
@@ -185,15 +198,11 @@ def _check_proposals(paths: CampaignPaths) -> tuple[list[dict[str, Any]], list[P
 
 def _in_flight(paths: CampaignPaths, recorded_runs: set[Any]) -> set[int]:
     """Iterations held by a run in flight (or interrupted and not yet resumed): an intent, no record."""
-    held = set()
-    for intent_path in paths.runs_dir.glob("*/intent.json") if paths.runs_dir.is_dir() else ():
-        if (intent_path.parent / "interrupted.json").exists() or intent_path.parent.name in recorded_runs:
-            continue
-        try:
-            held.add(json.loads(intent_path.read_text())["iteration"])
-        except (ValueError, KeyError, TypeError):
-            continue
-    return held
+    try:
+        intents = Campaign(paths.root).intents()
+    except (CampaignError, JournalError, OSError):  # a damaged intent: the gaps are then reported
+        return set()
+    return {intent.iteration for intent in intents if intent.run_id not in recorded_runs}
 
 
 def _gaps(paths: CampaignPaths, first_line: dict[int, int], records: list[dict[str, Any]]) -> list[Problem]:
@@ -201,7 +210,7 @@ def _gaps(paths: CampaignPaths, first_line: dict[int, int], records: list[dict[s
     if not first_line:
         return []
     # runs in flight are recorded before a stop record: a number below one is lost, not in flight
-    stops = [r["iteration"] for r in records if r.get("status") in TERMINAL]
+    stops = [r["iteration"] for r in records if (parse_status(r.get("status")) or Status.RAN).ends_campaign]
     held = {i for i in _in_flight(paths, {r.get("run_id") for r in records}) if i > max(stops, default=0)}
     missing = [i for i in range(1, max(first_line)) if i not in first_line and i not in held]
     problems = []
@@ -258,11 +267,11 @@ def _check_runs_log(paths: CampaignPaths, records: list[dict[str, Any]]) -> list
         Problem(
             "runs.jsonl",
             f"run {r.get('run_id')!r} of iteration {r['iteration']} ran, but has no readable line here",
-            "restore runs.jsonl from a backup, or append that record's 'record' field to it as one line "
-            "(train.py printed as its FINAL_METRIC the record it logged)",
+            "restore runs.jsonl from a backup, or append that record's 'final_metric' field ('record' in "
+            "schema 1) to it as one line (train.py printed it as its FINAL_METRIC and logged it)",
         )
         for r in records
-        if r.get("status") == "ran" and r.get("run_id") not in first_line
+        if parse_status(r.get("status")) is Status.RAN and r.get("run_id") not in first_line
     ]
     return problems
 
@@ -308,15 +317,18 @@ def audit_problems(root: str | Path, shape_only: bool = False) -> list[Problem]:
 class CheckResult:
     iterations: int
     problems: list[Problem]
+    notes: list[str]  # facts that are not problems (e.g. a published campaign)
 
 
 def check_campaign(root: str | Path) -> CheckResult:
     """Every problem of the campaign in ``root`` (which must be a directory)."""
     paths = CampaignPaths(Path(root))
-    problems = _check_meta(paths)
     records, proposal_problems = _check_proposals(paths)
+    notes = [PUBLISHED] if records and not paths.runs_dir.is_dir() else []
+    problems = _check_meta(paths, notes)
     problems += proposal_problems + _check_runs_log(paths, records) + audit_problems(root)
-    return CheckResult(len(records), problems)
+    iterations = sum(parse_status(r.get("status")) is not Status.STOPPED for r in records)
+    return CheckResult(iterations, problems, notes)
 
 
 def trail_problems(root: str | Path) -> list[Problem]:

@@ -1,0 +1,173 @@
+"""The audit report's figures: the search (paper Fig. hero a: every experiment's metric and each
+arm's running best), the recipe (Fig. hero b: how each parameter moved), and the family's own
+domain figure for the promoted configuration's saved policy (its optional report.py hook)."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from autoresearch.audit.inputs import AuditedCampaign
+from autoresearch.campaign import Campaign, Record, portable_path
+from autoresearch.family import Family
+from autoresearch.loop.runner import family_env
+
+COLORS = {"agent": "#2ca02c", "random": "#1f77b4", "random_matched": "#6baed6", "other": "#ff7f0e"}
+HOOK_TIMEOUT_S = 600.0
+LOG_SPAN = 10.0  # the search figure goes log-scale once the metric spans a decade (paper Fig. hero a)
+
+
+@dataclass(frozen=True)
+class PlottedArm:
+    label: str
+    color: str
+    records: list[Record]
+
+    @property
+    def ran(self) -> list[Record]:
+        return [r for r in self.records if r.ran]
+
+
+def load_arm(directory: Path, label: str | None, color: str) -> PlottedArm:
+    arm = Campaign(directory)
+    proposer = arm.meta().proposer if arm.exists() else "?"
+    return PlottedArm(label or f"{proposer} ({directory.name})", color, arm.records())
+
+
+def random_arms(audit: dict[str, Any]) -> list[PlottedArm]:
+    """The random arms the campaign's audit ran."""
+    arms = []
+    for step, label in (("random", "random search"), ("random_matched", "random search, matched range")):
+        part = audit.get(step)
+        if part and Path(part["dir"]).is_dir():
+            arms.append(load_arm(Path(part["dir"]), label, COLORS[step]))
+    return arms
+
+
+def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] | None, out: Path) -> None:
+    """Per-experiment metric (filled: feasible, hollow: infeasible) and each arm's running best."""
+    fig = Figure(figsize=(8, 4.5))
+    ax = fig.add_subplot()
+    values = []
+    for arm in arms:
+        ran = arm.ran
+        values += [r.metric for r in ran]
+        for feasible in (True, False):
+            pts = [r for r in ran if bool(r.feasible) == feasible]
+            ax.scatter(
+                [r.iteration for r in pts],
+                [r.metric for r in pts],
+                s=18,
+                alpha=0.6,
+                facecolors=arm.color if feasible else "none",
+                edgecolors=arm.color,
+                label=f"{arm.label}: {'feasible' if feasible else 'infeasible'} runs" if pts else None,
+            )
+        trace = [(r.iteration, r.best_so_far) for r in arm.records if r.best_so_far is not None]
+        if trace:
+            ax.step(
+                *zip(*trace, strict=True),
+                where="post",
+                color=arm.color,
+                lw=2,
+                label=f"{arm.label}: best so far",
+            )
+    if noise:
+        ax.axhline(noise["mean"], color="gray", lw=1, ls=":", label=f"baseline over {noise['k']} seeds")
+        ax.axhspan(noise["mean"] - noise["std"], noise["mean"] + noise["std"], color="gray", alpha=0.15)
+    if family.target is not None:
+        ax.axhline(family.target, color="black", lw=1, ls="--", label=f"target {family.target:g}")
+        values.append(family.target)
+    if values and min(values) > 0 and max(values) / min(values) >= LOG_SPAN:
+        ax.set_yscale("log")
+    better = "lower" if family.direction < 0 else "higher"
+    ax.set(
+        xlabel="experiment", ylabel=f"{family.metric} ({better} is better)", title="Search: every experiment"
+    )
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+
+
+def recipe_figure(records: list[Record], family: Family, out: Path) -> None:
+    """How each parameter moved: every run's value (dots) and the running best's value (line)."""
+    ran = [r for r in records if r.ran]
+    names = family.space.names
+    ncols = min(3, len(names))
+    nrows = math.ceil(len(names) / ncols)
+    fig = Figure(figsize=(4 * ncols, 2.3 * nrows))
+    best, best_configs = None, []
+    for r in ran:
+        if r.feasible and (best is None or family.direction * (r.metric - best.metric) > 0):
+            best = r
+        best_configs.append((r.iteration, best.config if best else None))
+    for i, name in enumerate(names, start=1):
+        ax = fig.add_subplot(nrows, ncols, i)
+        param = family.space.params[name]
+        levels = list(param.choices) if param.type == "categorical" else [False, True]
+
+        def y(value, param=param, levels=levels):
+            return levels.index(value) if param.type in ("categorical", "bool") else value
+
+        ax.scatter(
+            [r.iteration for r in ran], [y(r.config[name]) for r in ran], s=10, color="gray", alpha=0.5
+        )
+        line = [(it, y(cfg[name])) for it, cfg in best_configs if cfg is not None]
+        if line:
+            ax.step(*zip(*line, strict=True), where="post", color=COLORS["agent"], lw=2)
+        if param.type in ("categorical", "bool"):
+            ax.set_yticks(range(len(levels)), [str(v) for v in levels])
+        elif param.type == "log-real":
+            ax.set_yscale("log")
+        ax.set_title(f"{name} ({param.axis})", fontsize=9)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.tick_params(labelsize=7)
+    fig.suptitle("Recipe: each parameter over the campaign (line: the running best's value)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+
+
+def family_hook(campaign: AuditedCampaign, verify: dict[str, Any] | None, out: Path) -> str | None:
+    """Run the family's report.py on the promoted configuration's saved policy; None if it ran."""
+    family = campaign.family
+    if not (family.path / "report.py").is_file():
+        return "the family has no report.py plotting hook"
+    promoted = next(
+        (c for c in (verify or {}).get("candidates", []) if c["config_id"] == verify["promoted"]), None
+    )
+    if promoted is None:
+        return "no promoted configuration to plot"
+    run = next((r for r in promoted["reseeds"] if r["excluded"] is None), None)
+    policy = campaign.step_dir("verify") / run["run_id"] / "out"
+    if not policy.is_dir():  # verification runs are not committed: a clone has the figure, not the weights
+        if out.exists():
+            return None
+        return (
+            f"the promoted policy's saved run ({portable_path(policy)}) is not here; re-run verify to plot it"
+        )
+    cmd = [sys.executable, "report.py", "--policy", str(policy), "--out", str(out.resolve())]
+    try:
+        done = subprocess.run(
+            cmd,
+            cwd=family.path,
+            env=family_env(family),
+            capture_output=True,
+            text=True,
+            timeout=HOOK_TIMEOUT_S,
+        )
+    except subprocess.TimeoutExpired:
+        return f"the family's report.py did not finish within {HOOK_TIMEOUT_S:g} s"
+    if done.returncode != 0 or not out.exists():
+        return f"the family's report.py failed (exit {done.returncode}): {done.stderr.strip()[-300:]}"
+    return None
+
+
+# ----- report.md -------------------------------------------------------------------------

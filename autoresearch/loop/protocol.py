@@ -1,0 +1,211 @@
+"""What a family's train.py prints that autoresearch reads (docs/family-contract.md): one
+``FINAL_METRIC: {json}`` line, optional ``PROGRESS: {"step", <metric>}`` lines, both read from the
+run's stdout in bounded memory (:class:`StdoutReader`); what makes a record valid, and on which
+evaluation split it was scored.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from autoresearch.family import SEARCH, TEST
+from autoresearch.space import is_finite_number
+
+FINAL_METRIC_PREFIX = "FINAL_METRIC:"
+PROGRESS_PREFIX = "PROGRESS:"
+_FINAL, _PROGRESS = FINAL_METRIC_PREFIX.encode(), PROGRESS_PREFIX.encode()
+# stdout is read in blocks, at most POLL_READ bytes a poll, keeping no line longer than MAX_LINE
+# bytes: a protocol line is about 1 KB, so the loop's memory never grows with what a run prints.
+READ_BLOCK = 1 << 20
+POLL_READ = 16 << 20
+MAX_LINE = 1 << 20
+
+
+def check_record(record: Any, metric: str, run_id: str) -> tuple[float | None, str | None]:
+    """(metric value, None) for a valid FINAL_METRIC record, else (None, why not)."""
+    if not isinstance(record, dict):
+        return None, f"FINAL_METRIC is not a JSON object: {str(record)[:80]}"
+    if record.get("run_id") != run_id:
+        return None, f"FINAL_METRIC run_id is {record.get('run_id')!r}, expected {run_id!r}"
+    if metric not in record:
+        return None, f"FINAL_METRIC has no primary metric {metric!r}"
+    value = record[metric]
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return None, f"FINAL_METRIC {metric!r} is not a number: {_describe(value)}"
+    if isinstance(value, float) and not math.isfinite(value):
+        return None, f"FINAL_METRIC {metric!r} is not finite: {value!r}"
+    where = _unbounded_int(record)
+    if where is not None:
+        return None, f"FINAL_METRIC holds an integer too large for a float at {where}"
+    return float(value), None
+
+
+def _unbounded_int(data: Any) -> str | None:
+    """Where parsed JSON holds an integer float() cannot hold (JSON integers are unbounded), or None.
+    Such a number anywhere in a record (its metric, its constraints) raises OverflowError where used."""
+    stack: list[tuple[tuple[Any, ...], Any]] = [((), data)]
+    while stack:  # iterative: the data came from an untrusted line
+        path, item = stack.pop()
+        if isinstance(item, dict):
+            stack.extend(((*path, k), v) for k, v in item.items())
+        elif isinstance(item, list):
+            stack.extend(((*path, i), v) for i, v in enumerate(item))
+        elif isinstance(item, int) and not isinstance(item, bool) and not is_finite_number(item):
+            return "".join(f"[{key!r}]" for key in path) or "its top level"
+    return None
+
+
+def _describe(value: Any) -> str:
+    text = repr(value) if is_finite_number(value) or not isinstance(value, int) else "a huge integer"
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _loads(text: str | bytes) -> Any:
+    """json.loads that fails with ValueError only: a nesting too deep raises RecursionError."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError("nested too deeply") from None
+
+
+def parse_final_metric(
+    stdout: str, metric: str, run_id: str
+) -> tuple[dict[str, Any] | None, float | None, str | None]:
+    """(record, metric value, None) from exactly one valid FINAL_METRIC line, else (.., .., reason)."""
+    lines = [line for line in stdout.splitlines() if line.startswith(FINAL_METRIC_PREFIX)]
+    return final_metric(lines[:1], len(lines), metric, run_id)
+
+
+def final_metric(
+    lines: list[str], count: int, metric: str, run_id: str
+) -> tuple[dict[str, Any] | None, float | None, str | None]:
+    """:func:`parse_final_metric` from the first FINAL_METRIC line (or none) and how many there were."""
+    if count == 0:
+        return None, None, "no FINAL_METRIC line on stdout"
+    if count > 1:
+        return None, None, f"{count} FINAL_METRIC lines on stdout; exactly one is required"
+    if not lines:
+        return None, None, f"the FINAL_METRIC line is longer than {MAX_LINE} bytes"
+    try:
+        record = _loads(lines[0][len(FINAL_METRIC_PREFIX) :])
+    except ValueError as err:
+        return None, None, f"FINAL_METRIC is not valid JSON ({err})"
+    value, reason = check_record(record, metric, run_id)
+    return (record if reason is None else None), value, reason
+
+
+def check_split(record: dict[str, Any], metric: str, eval_split: str) -> str | None:
+    """Why a valid record does not hold what an ``eval_split`` run must, or None."""
+    said = record.get("eval_split", SEARCH)
+    if said != eval_split:
+        return f"FINAL_METRIC says it was scored on the {said!r} split, but the run asked for {eval_split!r}"
+    if eval_split == TEST:
+        search = record.get("search_split")
+        if not isinstance(search, dict):
+            return "FINAL_METRIC of an --eval-split test run has no 'search_split' object"
+        if check_record({**search, "run_id": record["run_id"]}, metric, record["run_id"])[1] is not None:
+            return f"FINAL_METRIC search_split has no finite primary metric {metric!r}"
+    return None
+
+
+def parse_progress(line: str, metric: str) -> dict[str, Any] | None:
+    """{"step", "value"} from a valid PROGRESS line, else None (a malformed line is ignored)."""
+    if not line.startswith(PROGRESS_PREFIX):
+        return None
+    try:
+        data = _loads(line[len(PROGRESS_PREFIX) :])
+    except ValueError:
+        return None
+    if not isinstance(data, dict):
+        return None
+    step, value = data.get("step"), data.get(metric)
+    if not isinstance(step, int) or not is_finite_number(step) or not is_finite_number(value):
+        return None
+    return {"step": step, "value": float(value)}
+
+
+class StdoutReader:
+    """Reads a run's stdout file as it grows, in bounded memory, and keeps only the protocol lines.
+
+    A line ends at ``\n`` or ``\r`` (a progress bar's carriage returns end lines too, so they are
+    read once and dropped). Each PROGRESS point is kept and ``on_report(step, value)`` is asked;
+    once it answers True, ``stop`` is set. Of the FINAL_METRIC lines the first is kept and all are
+    counted. A line longer than :data:`MAX_LINE` bytes is skipped (a FINAL_METRIC one is counted),
+    so memory stays bounded whatever the run prints.
+    """
+
+    def __init__(self, path: Path, metric: str, on_report: Callable[[int, float], bool] | None):
+        self.path, self.metric, self.on_report = path, metric, on_report
+        self.offset = 0
+        self.partial = b""  # the start of a line not yet ended
+        self.skipping = False  # inside a line longer than MAX_LINE, dropped up to its end
+        self.points: list[dict[str, Any]] = []
+        self.finals: list[str] = []  # the first FINAL_METRIC line
+        self.n_finals = 0
+        self.stop = False
+
+    def poll(self, budget: int = POLL_READ) -> bool:
+        """Read (up to ``budget`` bytes of) what was appended since the last call; True when the run
+        should stop. A line still being written waits for the next call."""
+        try:
+            with open(self.path, "rb") as f:
+                f.seek(self.offset)
+                while budget > 0 and (block := f.read(min(READ_BLOCK, budget))):
+                    self.offset += len(block)
+                    budget -= len(block)
+                    self._feed(block)
+        except FileNotFoundError:
+            pass
+        return self.stop
+
+    def finish(self) -> None:
+        """The run is over: read the rest; its last line needs no line end. Points are kept, not judged."""
+        self.on_report = None
+        before = -1
+        while self.offset != before:
+            before = self.offset
+            self.poll()
+        if self.partial and not self.skipping:
+            self._line(self.partial)
+        self.partial, self.skipping = b"", False
+
+    def _feed(self, block: bytes) -> None:
+        data = self.partial + block
+        end = max(data.rfind(b"\n"), data.rfind(b"\r"))
+        complete, self.partial = data[: end + 1], data[end + 1 :]
+        if self.skipping and complete:  # the overlong line ends at the first line end
+            cut = min(i for i in (complete.find(b"\n"), complete.find(b"\r")) if i >= 0)
+            complete, self.skipping = complete[cut + 1 :], False
+        if self.skipping:
+            self.partial = b""
+        elif len(self.partial) > MAX_LINE:
+            self._overlong(self.partial)
+            self.partial, self.skipping = b"", True
+        # Most output holds no protocol line: skip the split unless one may be there.
+        if _PROGRESS in complete or _FINAL in complete:
+            for raw in complete.splitlines():
+                self._line(raw)
+
+    def _overlong(self, start: bytes) -> None:
+        if start.startswith(_FINAL):
+            self.n_finals += 1  # counted, not kept: the run fails with the reason
+
+    def _line(self, raw: bytes) -> None:
+        if len(raw) > MAX_LINE:
+            self._overlong(raw)
+            return
+        if raw.startswith(_FINAL):
+            self.n_finals += 1
+            if self.n_finals == 1:
+                self.finals.append(raw.decode("utf-8", errors="replace"))
+            return
+        point = parse_progress(raw.decode("utf-8", errors="replace"), self.metric)
+        if point is None or self.stop:
+            return
+        self.points.append(point)
+        if self.on_report is not None and self.on_report(point["step"], point["value"]):
+            self.stop = True
