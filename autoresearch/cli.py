@@ -9,7 +9,7 @@ import importlib
 
 from autoresearch import __version__
 
-COMMANDS = ("loop", "noise", "verify", "prune", "random_arm", "audit", "report", "compare", "check")
+COMMANDS = ("loop", "noise", "verify", "prune", "random_arm", "audit", "report", "compare", "check", "export")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 import struct
 
@@ -69,6 +70,15 @@ def test_report_figures_are_non_trivial_pngs(audited):
         assert f"({name})" in (root / "report.md").read_text()
 
 
+def test_the_promoted_policy_is_exported_beside_the_report_by_the_familys_hook(audited):
+    _, root, _, _ = audited
+    exported = json.loads((root / "policy.onnx").read_text())["exported"]
+    promoted = read_audit(root)["verify"]["promoted"]
+    candidate = next(c for c in read_audit(root)["verify"]["candidates"] if c["config_id"] == promoted)
+    assert exported == candidate["config"]  # the promoted policy's own saved run, not another
+    assert "[policy.onnx](policy.onnx)" in (root / "report.md").read_text()
+
+
 def test_a_clone_without_the_saved_policy_keeps_its_figure_or_says_why(audited, tmp_path):
     _, root, _, _ = audited
     clone = tmp_path / "clone"  # verification runs (and their weights) are not committed
@@ -82,6 +92,9 @@ def test_a_clone_without_the_saved_policy_keeps_its_figure_or_says_why(audited, 
         "No family figure: the promoted policy's saved run (" in text and "re-run verify to plot it" in text
     )
     assert not (clone / "trajectories.png").exists()
+    (clone / "policy.onnx").unlink()
+    assert main(["report", "--campaign", str(clone)]) == 0
+    assert "No exported policy: the promoted policy's saved run (" in (clone / "report.md").read_text()
 
 
 def test_rerunning_the_audit_runs_nothing_again(audited):

@@ -135,25 +135,36 @@ def recipe_figure(records: list[Record], family: Family, out: Path) -> None:
     fig.savefig(out, dpi=110)
 
 
-def family_hook(campaign: AuditedCampaign, verify: dict[str, Any] | None, out: Path) -> str | None:
-    """Run the family's report.py on the promoted configuration's saved policy; None if it ran."""
-    family = campaign.family
-    if not (family.path / "report.py").is_file():
-        return "the family has no report.py plotting hook"
+def promoted_policy(campaign: AuditedCampaign, verify: dict[str, Any] | None) -> Path | str:
+    """The saved policy directory of the promoted configuration's first valid reseed, or why none."""
     promoted = next(
         (c for c in (verify or {}).get("candidates", []) if c["config_id"] == verify["promoted"]), None
     )
     if promoted is None:
-        return "no promoted configuration to plot"
+        return "no promoted configuration to"
     run = next((r for r in promoted["reseeds"] if r["excluded"] is None), None)
-    policy = campaign.step_dir("verify") / run["run_id"] / "out"
-    if not policy.is_dir():  # verification runs are not committed: a clone has the figure, not the weights
+    return campaign.step_dir("verify") / run["run_id"] / "out"
+
+
+def family_hook(
+    campaign: AuditedCampaign, verify: dict[str, Any] | None, out: Path, hook: str = "report.py"
+) -> str | None:
+    """Run one of the family's optional hooks on the promoted configuration's saved policy, writing
+    ``out``: report.py (``--out``, its domain figure) or export.py (``--onnx``, the policy as a file
+    that flies). None when it wrote ``out``, else why not."""
+    family = campaign.family
+    verb = "export" if hook == "export.py" else "plot"
+    if not (family.path / hook).is_file():
+        return f"the family has no {hook} {'export' if verb == 'export' else 'plotting'} hook"
+    policy = promoted_policy(campaign, verify)
+    if isinstance(policy, str):
+        return f"{policy} {verb}"
+    if not policy.is_dir():  # verification runs are not committed: a clone keeps the output, not the weights
         if out.exists():
             return None
-        return (
-            f"the promoted policy's saved run ({portable_path(policy)}) is not here; re-run verify to plot it"
-        )
-    cmd = [sys.executable, "report.py", "--policy", str(policy), "--out", str(out.resolve())]
+        return f"the promoted policy's saved run ({portable_path(policy)}) is not here; re-run verify to {verb} it"
+    flag = "--onnx" if hook == "export.py" else "--out"
+    cmd = [sys.executable, hook, "--policy", str(policy), flag, str(out.resolve())]
     try:
         done = subprocess.run(
             cmd,
@@ -164,10 +175,7 @@ def family_hook(campaign: AuditedCampaign, verify: dict[str, Any] | None, out: P
             timeout=HOOK_TIMEOUT_S,
         )
     except subprocess.TimeoutExpired:
-        return f"the family's report.py did not finish within {HOOK_TIMEOUT_S:g} s"
+        return f"the family's {hook} did not finish within {HOOK_TIMEOUT_S:g} s"
     if done.returncode != 0 or not out.exists():
-        return f"the family's report.py failed (exit {done.returncode}): {done.stderr.strip()[-300:]}"
+        return f"the family's {hook} failed (exit {done.returncode}): {done.stderr.strip()[-300:]}"
     return None
-
-
-# ----- report.md -------------------------------------------------------------------------

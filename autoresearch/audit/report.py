@@ -357,6 +357,9 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
     search_figure([agent, *random_arms(audit), *extra], family, noise, out_dir / "search.png")
     recipe_figure(campaign.records, family, out_dir / "recipe.png")
     hook_note = family_hook(campaign, audit.get("verify"), out_dir / "trajectories.png")
+    exported = None
+    if (family.path / "export.py").is_file():  # the optional export hook: the audited policy as a file
+        exported = family_hook(campaign, audit.get("verify"), out_dir / "policy.onnx", hook="export.py")
     better = "lower" if family.direction < 0 else "higher"
     n_runs = sum(r.status.started_a_run for r in campaign.records)
     lines = [
@@ -398,5 +401,13 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
         lines += ["![trajectories](trajectories.png)", "", "The family's own figure for the promoted policy."]
     else:
         lines.append(f"No family figure: {hook_note}.")
+    if (family.path / "export.py").is_file():
+        lines += [
+            "",
+            "The promoted policy, exported by the family's export.py: [policy.onnx](policy.onnx) "
+            "(fly it with `examples/fly_onnx.py`)."
+            if exported is None
+            else f"No exported policy: {exported}.",
+        ]
     (out_dir / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
     return out_dir / "report.md"

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch import provenance
-from autoresearch.campaign import CampaignError, CampaignMeta, CampaignPaths, portable_path, session
+from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, portable_path, session
 from autoresearch.commands.common import error_exit
 from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
 from autoresearch.family import Family, FamilyError, resolve_family
@@ -50,6 +50,7 @@ DEFAULTS: dict[str, Any] = {
     "workers": 1,
     "executor": "local",
     "early_stop": "none",
+    "optuna_journal": None,  # also write each run to this Optuna journal file (optuna-dashboard)
     **LLM_DEFAULTS,
 }
 API_KEYS = {"anthropic": "ANTHROPIC_API_KEY", "openai": "OPENAI_API_KEY"}
@@ -144,6 +145,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="stop runs whose PROGRESS curve is worse than the finished runs' (Optuna's MedianPruner or "
         "SuccessiveHalvingPruner); default none",
     )
+    p.add_argument(
+        "--optuna-journal",
+        metavar="PATH",
+        help="also write every run, as it is recorded, to this Optuna JournalStorage file, so that "
+        "`optuna-dashboard PATH` is a live view of the campaign; kept in campaign.json",
+    )
     p.add_argument("--plain", action="store_true", help="one line per iteration even on a terminal")
     p.add_argument(
         "--repeats",
@@ -179,8 +186,9 @@ def _check_key(proposer: str, settings: dict[str, Any]) -> None:
 def _settings(args: argparse.Namespace, saved: dict[str, Any]) -> dict[str, Any]:
     given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
     settings = {**DEFAULTS, **saved, **given}
-    if settings["random_arm"] is not None:
-        settings["random_arm"] = portable_path(settings["random_arm"])
+    for path in ("random_arm", "optuna_journal"):
+        if settings[path] is not None:
+            settings[path] = portable_path(settings[path])
     return settings
 
 
@@ -280,6 +288,15 @@ def _executor(args: argparse.Namespace, settings: dict[str, Any]) -> Executor | 
     return RayExecutor(args.ray_address, settings["workers"], args.cpus_per_task, args.gpus_per_task)
 
 
+def _feed(settings: dict[str, Any], family: Family, root: Path):
+    """The live Optuna journal of --optuna-journal (optuna imported only then), or None."""
+    if not settings["optuna_journal"]:
+        return None
+    from autoresearch.optuna_journal import LiveFeed
+
+    return LiveFeed(settings["optuna_journal"], family, Campaign(root))
+
+
 def run(args: argparse.Namespace) -> int:
     if args.repeats is not None or (args.campaign and repeats.is_group(args.campaign)):
         return _run_repeats(args)
@@ -293,13 +310,16 @@ def run(args: argparse.Namespace) -> int:
         lock = CampaignLock(root, "loop", create=True).acquire()  # one process per campaign
         meta.write(root)
         executor = _executor(args, meta.settings)
+        feed = _feed(meta.settings, family, root)
     except (UsageError, FamilyError, CampaignError, ValueError, ImportError, RuntimeError, OSError) as err:
         return error_exit("loop", err)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     resume_hint = f"autoresearch loop --resume --campaign {root}"
     try:
         view = make_view(family.metric, args.plain)
-        outcome = Orchestrator(family, proposer, root, loop, view=view, executor=executor).run()
+        outcome = Orchestrator(
+            family, proposer, root, loop, view=view, executor=executor, on_record=feed
+        ).run()
     except KeyboardInterrupt:
         print(f"\ninterrupted; campaign: {root}\nresume with: {resume_hint}", file=sys.stderr)
         return 130

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -93,7 +94,8 @@ def run_id_for(iteration: int, attempt: int = 1) -> str:
 
 class Orchestrator:
     """One campaign's loop. ``executor`` (a Ray executor) runs each experiment as a remote task;
-    without one, runs are supervised by threads of this process."""
+    without one, runs are supervised by threads of this process. ``on_record`` hears every record
+    once written (e.g. autoresearch.optuna_journal.LiveFeed)."""
 
     def __init__(
         self,
@@ -103,12 +105,14 @@ class Orchestrator:
         settings: LoopSettings,
         view: View | None = None,
         executor: Executor | None = None,
+        on_record: Callable[[Record], None] | None = None,
     ):
         self.family = family
         self.proposer = proposer
         self.settings = settings
         self.view = view or View()
         self.executor = executor
+        self.on_record = on_record
         self.campaign = Campaign(campaign_dir)
         self.state = CampaignState(family)  # the fold of the records, once _open has read them
         self.writer = CampaignWriter(self.campaign, self.state, self.elapsed)
@@ -404,6 +408,8 @@ class Orchestrator:
 
     def _shown(self, record: Record) -> None:
         self.view.record(record, closest_trigger(self.state, self.settings.budgets, self.elapsed()))
+        if self.on_record is not None:
+            self.on_record(record)
 
     def _run_outcome(self, record: Record) -> RunOutcome:
         """What the proposer is told of a run record (a failed or stopped run has no metric)."""

@@ -28,32 +28,20 @@ each constraint (1.0 each while every run has met them all); runs without graded
 from __future__ import annotations
 
 import hashlib
-import math
 import random
 from collections.abc import Sequence
 from typing import Any
 
 import optuna
-from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import FrozenTrial, TrialState
 
 from autoresearch.direction import Direction
 from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, RunOutcome
+from autoresearch.proposers.optuna_space import distributions
 from autoresearch.proposers.random_search import MAX_DRAWS, full_config_proposal, seen_configs
-from autoresearch.space import ParamSpec, SearchSpace, canonical_key
+from autoresearch.space import SearchSpace, canonical_key
 
 MAX_ASKS = 20  # re-asks with a new seed when TPE suggests a configuration already run
-
-
-def _distribution(param: ParamSpec) -> BaseDistribution:
-    if param.type == "int":
-        return IntDistribution(int(param.low), int(param.high) - (1 if param.high_exclusive else 0))
-    if param.type in ("real", "log-real"):
-        high = math.nextafter(param.high, param.low) if param.high_exclusive else param.high
-        return FloatDistribution(float(param.low), float(high), log=param.type == "log-real")
-    if param.type == "bool":
-        return CategoricalDistribution(param.choices or (False, True))
-    return CategoricalDistribution(tuple(param.choices or ()))
 
 
 def _derived_seed(*parts: Any) -> int:
@@ -73,7 +61,7 @@ class TPEProposer(Proposer):
         self.direction = Direction.of(registry["direction"])
         self.seed = seed
         self.n_startup_trials = n_startup_trials
-        self.distributions = {name: _distribution(p) for name, p in self.space.params.items()}
+        self.distributions = distributions(self.space)
         self.outcomes: list[RunOutcome] = []
 
     def tell(self, outcome: RunOutcome) -> None:

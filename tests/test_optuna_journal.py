@@ -1,0 +1,122 @@
+"""A campaign in Optuna's JournalStorage: exported after the fact and fed live, read back by
+Optuna itself and served by a real optuna-dashboard while the loop runs."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import optuna
+import pytest
+from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
+
+from autoresearch.campaign import Campaign, CampaignMeta, Status
+from autoresearch.family import Family
+from autoresearch.optuna_journal import export_campaign
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load(path: Path, name: str) -> optuna.Study:
+    storage = optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(path)))
+    return optuna.load_study(study_name=name, storage=storage)
+
+
+def test_export_gives_optuna_the_campaigns_trials(tmp_path):
+    toy = copy_toy(tmp_path)
+    script = [{"EPOCHS": 0}, {"EPOCHS": 12}, "not a dict", TOY_OPTIMUM]  # a failure and a refusal among them
+    run_loop(toy, ScriptedProposer(script), tmp_path / "c", max_iters=5)
+    CampaignMeta.new(Family.load(toy), "scripted", {}).write(tmp_path / "c")
+    journal = tmp_path / "c.log"
+    _, added = export_campaign(tmp_path / "c", journal)
+    records = [r for r in Campaign(tmp_path / "c").records() if r.status.started_a_run]
+    study = load(journal, "c")
+    assert added == len(records) == len(study.trials) and study.direction.name == "MINIMIZE"
+    for trial, record in zip(study.trials, sorted(records, key=lambda r: r.iteration), strict=True):
+        assert trial.user_attrs["run_id"] == record.run_id and trial.params == record.config
+        if record.status is Status.RAN:
+            assert trial.state.name == "COMPLETE" and trial.value == record.metric
+        else:
+            assert trial.state.name == "FAIL" and "exited" in trial.user_attrs["reason"]
+    assert (
+        study.best_trial.user_attrs["run_id"] == Campaign(tmp_path / "c").state(Family.load(toy)).best.run_id
+    )
+    # Derived, not a second record of truth: exporting again adds nothing.
+    assert export_campaign(tmp_path / "c", journal)[1] == 0 and len(load(journal, "c").trials) == added
+
+
+def test_a_committed_campaign_exports_with_its_graded_constraints(tmp_path):
+    root = ROOT / "results" / "evidence" / "docking-gp"
+    journal = tmp_path / "docking.log"
+    export_campaign(root, journal)
+    study = load(journal, root.name)
+    runs = [r for r in Campaign(root).records() if r.status.started_a_run]
+    assert len(study.trials) == len(runs)
+    feasible = [t for t in study.trials if t.user_attrs.get("feasible")]
+    assert feasible and all(max(t.constraints.values()) <= 0 for t in feasible)
+    assert set(feasible[0].constraints) == {"success_shortfall", "violation_rate", "clearance_deficit"}
+    infeasible = [t for t in study.trials if t.user_attrs.get("feasible") is False]
+    assert infeasible and all(max(t.constraints.values()) > 0 for t in infeasible)
+    stopped = [t for t in study.trials if t.state.name == "PRUNED"]
+    assert all(t.intermediate_values for t in stopped)  # early-stopped runs keep their curve
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _get(url: str) -> dict:
+    with urllib.request.urlopen(url, timeout=5) as reply:
+        return json.loads(reply.read())
+
+
+@pytest.mark.slow
+def test_a_real_dashboard_serves_the_campaign_while_the_loop_runs(tmp_path):
+    toy = copy_toy(tmp_path)
+    journal = tmp_path / "live.log"
+    loop = subprocess.Popen(
+        [sys.executable, "-m", "autoresearch", "loop", "--family", str(toy), "--proposer", "random",
+         "--max-iters", "6", "--campaign", str(tmp_path / "c"), "--optuna-journal", str(journal), "--plain"],
+        env={**os.environ, "TOY_SLEEP_S": "1.0"}, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    port = _free_port()
+    deadline = time.monotonic() + 60
+    while not journal.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    dashboard = subprocess.Popen(
+        [str(Path(sys.executable).with_name("optuna-dashboard")), str(journal), "--port", str(port), "--quiet"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        seen = []
+        while loop.poll() is None and time.monotonic() < deadline:
+            try:
+                studies = _get(f"http://127.0.0.1:{port}/api/studies")["study_summaries"]
+            except OSError:  # the server is starting
+                time.sleep(0.2)
+                continue
+            detail = _get(f"http://127.0.0.1:{port}/api/studies/{studies[0]['study_id']}")
+            seen.append(len(detail["trials"]))
+            time.sleep(0.3)
+        assert loop.wait(timeout=60) == 0, loop.stderr.read()
+        runs = len(Campaign(tmp_path / "c").started())
+        assert any(0 < n < runs for n in seen), seen  # the dashboard saw the campaign grow while it ran
+        while time.monotonic() < deadline:  # the server re-reads the journal as it is asked
+            detail = _get(f"http://127.0.0.1:{port}/api/studies/{studies[0]['study_id']}")
+            if len(detail["trials"]) == runs:
+                break
+            time.sleep(0.2)
+        assert len(detail["trials"]) == runs >= 5 and studies[0]["study_name"] == "c"
+    finally:
+        dashboard.terminate()
+        dashboard.wait(timeout=10)
+        if loop.poll() is None:
+            loop.kill()
