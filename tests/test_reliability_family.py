@@ -18,6 +18,7 @@ from loop_helpers import copy_toy
 from autoresearch.audit.auditjson import read_audit
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise
+from autoresearch.campaign import CampaignError, CampaignMeta
 from autoresearch.executors import LocalExecutor
 from autoresearch.journal import read_json, write_json_atomic
 
@@ -125,6 +126,24 @@ def test_a_campaign_written_before_family_dir_still_resumes_from_its_directory(t
     code, _, err = finish(cli(*resume, cwd=tmp_path))
     assert code == 0, err
     assert read_json(campaign / "campaign.json")["family_dir"] == "../toy"
+
+
+def test_a_legacy_campaign_finds_its_relative_family_above_it(tmp_path):
+    """Written before family_dir, with ``family`` relative to where its loop started (the repository
+    root): read from anywhere, the family is found under a directory above the campaign."""
+    toy = copy_toy(tmp_path)
+    campaign = tmp_path / "results" / "evidence" / "c"
+    loop = ["loop", "--family", str(toy), "--proposer", "random", "--max-iters", "1", "--plain"]
+    assert finish(cli(*loop, "--campaign", str(campaign)))[0] == 0
+    legacy = read_json(campaign / "campaign.json")
+    legacy.pop("family_dir")
+    legacy["family"] = os.path.relpath(toy, tmp_path)
+    (campaign / "campaign.json").write_text(json.dumps(legacy))
+    assert CampaignMeta.read(campaign).open_family(campaign).path.resolve() == toy.resolve()
+    legacy["family"] = "nowhere/toy"
+    (campaign / "campaign.json").write_text(json.dumps(legacy))
+    with pytest.raises(CampaignError, match="nowhere/toy under each directory above the campaign"):
+        CampaignMeta.read(campaign).open_family(campaign)
 
 
 def test_numbers_the_audit_and_the_prompts_read_from_family_json_are_checked(tmp_path):

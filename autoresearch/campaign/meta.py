@@ -93,15 +93,21 @@ class CampaignMeta:
     def family_paths(self, root: str | Path) -> list[Path]:
         """Where the family may be, in order: ``family_dir`` from the campaign directory ``root`` (a
         campaign moved with its family), then ``family`` as written (absolute, or relative to the
-        working directory: a campaign copied elsewhere, or written before ``family_dir`` was kept)."""
+        working directory: a campaign copied elsewhere, or written before ``family_dir`` was kept),
+        then, when relative, from each directory above the campaign (a campaign written before
+        ``family_dir``, read from elsewhere than where its loop started, e.g. a repository's root)."""
         paths = [Path(root) / self.family_dir] if self.family_dir else []
-        return [*paths, Path(self.family)]
+        family = Path(self.family)
+        above = [] if family.is_absolute() else [parent / family for parent in Path(root).resolve().parents]
+        return [*paths, family, *above]
 
     def open_family(self, root: str | Path) -> Family:
         """The campaign's family, found from any working directory and checked to be the one it ran."""
         path = next((p for p in self.family_paths(root) if p.is_dir()), None)
         if path is None:
-            tried = ", ".join(str(p) for p in self.family_paths(root))
+            tried = ", ".join(str(p) for p in self.family_paths(root)[: 2 if self.family_dir else 1])
+            if not Path(self.family).is_absolute():
+                tried += f" and {self.family} under each directory above the campaign"
             raise CampaignError(
                 f"{CampaignPaths(Path(root)).campaign_json}: its family directory does not exist (tried "
                 f"{tried}; the {self.family_name!r} family it ran); pass --family DIR where it is now"
