@@ -21,6 +21,7 @@ Adding is idempotent (keyed by the iteration), so a resumed loop fills any gap a
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +53,9 @@ class OptunaJournal:
             storage=storage, study_name=study_name, direction=family.direction.study, load_if_exists=True
         )
         self.study.set_user_attr("metric", family.metric)
+        with warnings.catch_warnings():  # experimental since Optuna 3.2, read by the dashboard's axes
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            self.study.set_metric_names([family.metric])
         self.study.set_user_attr("family", family.name)
         self.added = {trial.user_attrs.get("iteration") for trial in self.study.get_trials(deepcopy=False)}
 

@@ -38,6 +38,7 @@ def test_export_gives_optuna_the_campaigns_trials(tmp_path):
     records = [r for r in Campaign(tmp_path / "c").records() if r.status.started_a_run]
     study = load(journal, "c")
     assert added == len(records) == len(study.trials) and study.direction.name == "MINIMIZE"
+    assert study.metric_names == [Family.load(toy).metric]
     for trial, record in zip(study.trials, sorted(records, key=lambda r: r.iteration), strict=True):
         assert trial.user_attrs["run_id"] == record.run_id and trial.params == record.config
         if record.status is Status.RAN:
