@@ -8,7 +8,8 @@ temporary run directory, run as a subprocess); measures the loop's overhead per 
 temporary copy of the toy family; and reads the key-free arms' experiments to target from the
 committed groups of repeats in results/, the compute early stopping saved from committed campaigns
 and the main job's wall time on a fresh clone from the log benchmarks/main_job_fresh_clone.sh
-writes (nothing is run for those rows); ``--parallel`` also times a docking campaign at --workers 1 and 2. A few minutes; ``--quick`` shortens every measurement
+writes, the SB3 adapter's and the sealed split's costs from bench_sb3.py's and bench_evaluation.py's
+committed output (nothing is run for those rows); ``--parallel`` also times a docking campaign at --workers 1 and 2. A few minutes; ``--quick`` shortens every measurement
 (a smoke test, not numbers to quote). 'Tuned' is the audited best in each family.json: its wall
 time is read from the committed reseeded runs, or with ``--tuned`` timed now (docking's takes
 minutes on a CPU). Progress goes to stderr, the table to stdout.
@@ -68,6 +69,8 @@ EARLY_STOP_PAIRS = [
 EVIDENCE_CAMPAIGNS = ("results/evidence/rendezvous-gp", "results/evidence/docking-gp")
 
 PARALLEL_LOG = "results/logs/bench_loop_parallel.txt"  # bench_loop_parallel.py's committed output
+SB3_LOG = "results/logs/bench_sb3.txt"  # bench_sb3.py's committed output
+EVALUATION_LOG = "results/logs/bench_evaluation.txt"  # bench_evaluation.py's committed output
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
 
@@ -310,6 +313,55 @@ def main_job_row() -> Row:
     return (what, f"{wall.group(1)} s", "target <= 600 s", "; ".join(notes))
 
 
+def table_cells(text: str, first: str) -> list[list[str]]:
+    """The cells of every Markdown table row in ``text`` whose first cell starts with ``first``."""
+    return [
+        [c.strip() for c in line.strip().strip("|").split("|")]
+        for line in text.splitlines()
+        if line.startswith(f"| {first}")
+    ]
+
+
+def sb3_rows() -> list[Row]:
+    """PPO's throughput on the native SB3 adapter against DummyVecEnv, from bench_sb3.py's
+    committed output (one table per env, in the order it ran; nothing is run)."""
+    log = ROOT / SB3_LOG
+    what = "SB3 PPO.learn env-steps/s, NativeVecEnv vs DummyVecEnv"
+    if not log.is_file():
+        return [(what, "not run", "", f"benchmarks/bench_sb3.py > {SB3_LOG}")]
+    text = log.read_text(encoding="utf-8")
+    envs = re.findall(r"PPO on (\S+), (\d+) envs", text)
+    native, dummy = table_cells(text, "NativeVecEnv, info_keys"), table_cells(text, "DummyVecEnv")
+    return [
+        (
+            f"{what}, {env}",
+            f"{fast[2]} vs {slow[2]}",
+            f"{fast[3]} (rollout alone {fast[5]})",
+            f"{n} envs, info_keys=('is_success',); from {SB3_LOG}",
+        )
+        for (env, n), fast, slow in zip(envs, native, dummy, strict=True)
+    ]
+
+
+def evaluation_rows() -> list[Row]:
+    """What scoring on the sealed test split costs an audit run, from bench_evaluation.py's
+    committed output (nothing is run)."""
+    log = ROOT / EVALUATION_LOG
+    what = "evaluation per audit run, sealed test split (1024 starts) vs search split (128)"
+    if not log.is_file():
+        return [(what, "not run", "", f"benchmarks/bench_evaluation.py > {EVALUATION_LOG}")]
+    return [
+        (
+            f"{what}, {family}",
+            f"{test} vs {search}",
+            ratio,
+            f"start sets built once: {build}; {EVALUATION_LOG}",
+        )
+        for family, _, build, search, test, ratio in table_cells(log.read_text(encoding="utf-8"), "")
+        if family != "family"  # the header
+    ]
+
+
 def evidence_rows() -> list[Row]:
     """Experiments and wall-clock to the family's target (single seed, feasible runs) in each
     committed evidence campaign, and its best candidate's reseeded verification (nothing is run)."""
@@ -330,19 +382,21 @@ def evidence_rows() -> list[Row]:
             else f"target {target:g} not reached in {run.n} experiments, {run.elapsed[-1]:.0f} s"
         )
         audit = read_audit(root)
+        split = (audit.get("verify") or {}).get("split", "search")  # audits before the sealed split: search
         reseeded = [
             c for c in (audit.get("verify") or {}).get("candidates", []) if c.get("sigma_r") is not None
         ]
         verdict = (
             "; ".join(
-                f"{c['config_id']} reseeded {c['mu_r']:.4g} +- {c['sigma_r']:.2g} (n={c['n']}): {c['reason']}"
+                f"{c['config_id']} reseeded on {split} {c['mu_r']:.4g} +- {c['sigma_r']:.2g} (n={c['n']}): "
+                f"{c['reason']}"
                 for c in reseeded
             )
             or "no candidate reseeded"
         )
         rows.append(
             (
-                f"key-free evidence campaign, {registry['name']}: {meta['proposer']} over {settings['space']}",
+                f"key-free evidence campaign, {registry['name']}: {meta.proposer} over {settings['space']}",
                 measured,
                 verdict,
                 f"{settings['workers']} workers, --early-stop {settings['early_stop']}, "
@@ -455,6 +509,7 @@ def main() -> int:
         rows += compare_rows()
         rows += early_stop_rows()
         rows += evidence_rows()
+        rows += sb3_rows() + evaluation_rows()
         rows.append(main_job_row())
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"

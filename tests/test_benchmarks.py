@@ -123,3 +123,41 @@ def test_main_job_row_reads_the_fresh_clone_log(tmp_path, monkeypatch):
     assert what.startswith("main job")
     assert (measured, target) == ("246 s", "target <= 600 s")
     assert note.startswith("candidate 2b93d51f reseeded 1.734") and "install 61 s before it" in note
+
+
+def test_sb3_and_evaluation_rows_read_the_committed_tables(tmp_path, monkeypatch):
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    assert run_all.sb3_rows()[0][1] == run_all.evaluation_rows()[0][1] == "not run"
+    logs = tmp_path / "results" / "logs"
+    logs.mkdir(parents=True)
+    header = (
+        "| VecEnv | envs | learn env-steps/s | vs Dummy | rollout env-steps/s | vs Dummy | learn wall [s] |\n"
+    )
+    (logs / "bench_sb3.txt").write_text(
+        "SB3 2.9; PPO on rendezvous, 16 envs, 16384 env steps per run\n\n"
+        + header
+        + "| NativeVecEnv, info_keys=('is_success',) | 16 | 20,000 | 2.00x | 30,000 | 3.00x | 0.6 |\n"
+        "| NativeVecEnv, every info key | 16 | 19,000 | 1.90x | 29,000 | 2.90x | 0.6 |\n"
+        "| DummyVecEnv | 16 | 10,000 | 1.00x | 10,000 | 1.00x | 1.3 |\n"
+        "SB3 2.9; PPO on docking+cbf, 8 envs, 16384 env steps per run\n\n"
+        + header
+        + "| NativeVecEnv, info_keys=('is_success',) | 8 | 9,000 | 4.50x | 12,000 | 6.00x | 0.7 |\n"
+        "| DummyVecEnv | 8 | 2,000 | 1.00x | 2,000 | 1.00x | 3.3 |\n"
+    )
+    (logs / "bench_evaluation.txt").write_text(
+        "Python 3.11\n\n| family | build search (128) | build test (1024) | evaluate search | evaluate test |"
+        " test / search |\n|---|---:|---:|---:|---:|---:|\n| rendezvous | 0.1 s | 0.3 s | 0.05 s | 0.40 s | 8.0x |\n"
+    )
+    rdv, dock = run_all.sb3_rows()
+    assert rdv[0].endswith("rendezvous") and rdv[1:3] == ("20,000 vs 10,000", "2.00x (rollout alone 3.00x)")
+    assert dock[0].endswith("docking+cbf") and dock[1] == "9,000 vs 2,000" and dock[3].startswith("8 envs")
+    (row,) = run_all.evaluation_rows()
+    assert row[0].endswith("rendezvous") and row[1:3] == ("0.40 s vs 0.05 s", "8.0x") and "0.3 s" in row[3]
+
+
+def test_evidence_rows_read_the_committed_campaigns():
+    rows = run_all.evidence_rows()
+    assert [row[0].split(",")[1].split(":")[0].strip() for row in rows] == ["rendezvous", "docking"]
+    for what, measured, verdict, note in rows:
+        assert "gp over" in what and measured.startswith("target ") and "reseeded" in verdict
+        assert note.endswith(tuple(run_all.EVIDENCE_CAMPAIGNS))
