@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 from typing import Any
@@ -93,3 +94,18 @@ def run_loop(
     )
     outcome = Orchestrator(Family.load(family_dir), proposer, campaign, settings).run()
     return outcome, read_jsonl(campaign / "proposals.jsonl")
+
+
+def processes_naming(text: str) -> list[tuple[int, str]]:
+    """(pid, command line) of the live processes, other than this one, whose command line contains
+    ``text`` (Linux /proc)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != os.getpid():
+            try:
+                cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
+            if text in cmdline:  # a zombie's command line is empty
+                found.append((int(entry.name), cmdline))
+    return found

@@ -114,14 +114,21 @@ def test_a_campaign_finds_its_family_from_any_working_directory(tmp_path):
     assert read_json(start / "c" / "campaign.json")["family_dir"] == "../../moved"
 
 
-def test_a_campaign_written_before_family_dir_still_resumes_from_its_directory(tmp_path):
-    toy, campaign = copy_toy(tmp_path), tmp_path / "c"
+def _legacy_campaign(toy: Path, campaign: Path, relative_to: Path) -> dict:
+    """A one-run campaign of ``toy`` as written before family_dir: ``family`` relative to
+    ``relative_to`` (where its loop started). Returns its campaign.json."""
     loop = ["loop", "--family", str(toy), "--proposer", "random", "--max-iters", "1", "--plain"]
     assert finish(cli(*loop, "--campaign", str(campaign)))[0] == 0
     legacy = read_json(campaign / "campaign.json")
     legacy.pop("family_dir")
-    legacy["family"] = os.path.relpath(toy, tmp_path)
+    legacy["family"] = os.path.relpath(toy, relative_to)
     (campaign / "campaign.json").write_text(json.dumps(legacy))
+    return legacy
+
+
+def test_a_campaign_written_before_family_dir_still_resumes_from_its_directory(tmp_path):
+    toy, campaign = copy_toy(tmp_path), tmp_path / "c"
+    _legacy_campaign(toy, campaign, relative_to=tmp_path)
     resume = ["loop", "--resume", "--campaign", "c", "--max-iters", "2", "--plain"]
     code, _, err = finish(cli(*resume, cwd=tmp_path))
     assert code == 0, err
@@ -133,12 +140,7 @@ def test_a_legacy_campaign_finds_its_relative_family_above_it(tmp_path):
     root): read from anywhere, the family is found under a directory above the campaign."""
     toy = copy_toy(tmp_path)
     campaign = tmp_path / "results" / "evidence" / "c"
-    loop = ["loop", "--family", str(toy), "--proposer", "random", "--max-iters", "1", "--plain"]
-    assert finish(cli(*loop, "--campaign", str(campaign)))[0] == 0
-    legacy = read_json(campaign / "campaign.json")
-    legacy.pop("family_dir")
-    legacy["family"] = os.path.relpath(toy, tmp_path)
-    (campaign / "campaign.json").write_text(json.dumps(legacy))
+    legacy = _legacy_campaign(toy, campaign, relative_to=tmp_path)
     assert CampaignMeta.read(campaign).open_family(campaign).path.resolve() == toy.resolve()
     legacy["family"] = "nowhere/toy"
     (campaign / "campaign.json").write_text(json.dumps(legacy))

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 from audit_support import ScriptedProposer, run_campaign
-from loop_helpers import copy_toy
+from loop_helpers import copy_toy, processes_naming
 
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
@@ -42,20 +42,6 @@ def _escaping_toy(tmp_path: Path) -> Path:
     return toy
 
 
-def _processes_naming(text: str) -> list[tuple[int, str]]:
-    """(pid, command line) of the live processes whose command line contains ``text``."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit() and int(entry.name) != os.getpid():
-            try:
-                cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-            except OSError:
-                continue
-            if text in cmdline:  # a zombie's command line is empty
-                found.append((int(entry.name), cmdline))
-    return found
-
-
 def _wait_until(condition, timeout: float, what: str) -> None:
     deadline = time.monotonic() + timeout
     while not condition():
@@ -67,7 +53,7 @@ def _wait_until(condition, timeout: float, what: str) -> None:
 def escape(tmp_path):
     """The environment of a run that escapes; afterwards, whatever a failing test left is killed."""
     yield {**os.environ, "TOY_ESCAPE": str(tmp_path / "elsewhere")}
-    for pid, _ in _processes_naming(str(tmp_path)):
+    for pid, _ in processes_naming(str(tmp_path)):
         try:
             os.kill(pid, signal.SIGKILL)
         except ProcessLookupError:
@@ -75,15 +61,15 @@ def escape(tmp_path):
 
 
 def _grandchildren(tmp_path: Path) -> list:
-    return [p for p in _processes_naming(str(tmp_path)) if "setsid-grandchild" in p[1]]
+    return [p for p in processes_naming(str(tmp_path)) if "setsid-grandchild" in p[1]]
 
 
 def _leftovers(tmp_path: Path, settle_s: float = 10.0) -> list[tuple[int, str]]:
     """What is still running of ``tmp_path``'s runs once ``settle_s`` has passed without a change."""
     deadline = time.monotonic() + settle_s
-    while _processes_naming(str(tmp_path)) and time.monotonic() < deadline:
+    while processes_naming(str(tmp_path)) and time.monotonic() < deadline:
         time.sleep(0.05)
-    return _processes_naming(str(tmp_path))
+    return processes_naming(str(tmp_path))
 
 
 def _loop(campaign: Path, *args: str) -> list[str]:
@@ -169,7 +155,8 @@ def test_kill_9_of_the_loop_with_escaping_runs_in_flight_then_resume(tmp_path, e
     assert _leftovers(tmp_path) == []
 
 
-def test_a_hung_run_does_not_outlive_its_timeout_without_a_loop(tmp_path, escape):
+def _start_a_hung_run(tmp_path: Path, escape: dict) -> tuple[Path, subprocess.Popen]:
+    """A loop of one run that sleeps 300 s (with a setsid grandchild) under --timeout-per-run 3."""
     toy, campaign = _escaping_toy(tmp_path), tmp_path / "c"
     start = _loop(campaign, "--family", str(toy), "--proposer", "random", "--max-iters", "1")
     proc = subprocess.Popen(
@@ -178,6 +165,11 @@ def test_a_hung_run_does_not_outlive_its_timeout_without_a_loop(tmp_path, escape
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
+    return campaign, proc
+
+
+def test_a_hung_run_does_not_outlive_its_timeout_without_a_loop(tmp_path, escape):
+    campaign, proc = _start_a_hung_run(tmp_path, escape)
     _wait_until(lambda: _in_flight(campaign) == ["it0001"] and _grandchildren(tmp_path), 60, "the run")
     killed_at = _kill_9(proc)
     # No loop: the run's watchdog kills it, grandchild included, 3 s + its grace after it started.
@@ -196,14 +188,7 @@ def test_a_hung_run_does_not_outlive_its_timeout_without_a_loop(tmp_path, escape
 
 
 def test_a_run_past_its_deadline_at_resume_is_killed_and_timed_out(tmp_path, escape):
-    toy, campaign = _escaping_toy(tmp_path), tmp_path / "c"
-    start = _loop(campaign, "--family", str(toy), "--proposer", "random", "--max-iters", "1")
-    proc = subprocess.Popen(
-        [*start, "--timeout-per-run", "3"],
-        env={**escape, "TOY_SLEEP_S": "300"},
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    campaign, proc = _start_a_hung_run(tmp_path, escape)
     run_dir = (campaign / "runs" / "it0001").resolve()
     _wait_until(
         lambda: tracking.processes(run_dir, tracking.WATCHDOG_ENV) and _grandchildren(tmp_path), 60, "run"

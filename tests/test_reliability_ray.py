@@ -7,23 +7,9 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
-from loop_helpers import copy_toy
-
-
-def _processes_naming(text: str) -> list[tuple[int, str]]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
-            except OSError:
-                continue
-            if text in cmdline:  # a zombie's command line is empty
-                found.append((int(entry.name), cmdline))
-    return found
+from loop_helpers import copy_toy, processes_naming
 
 
 @pytest.mark.slow
@@ -57,10 +43,10 @@ def test_sigterm_under_ray_cancels_the_runs_in_flight(tmp_path, command):
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 130, err[-2000:]
         assert time.monotonic() - sent < 30  # not the 300 s the runs would take
-        assert _processes_naming(str(out)) == []  # both train.py and their watchdogs are gone
+        assert processes_naming(str(out)) == []  # both train.py and their watchdogs are gone
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        for pid, _ in _processes_naming(str(out)):  # what a failure left behind
+        for pid, _ in processes_naming(str(out)):  # what a failure left behind
             os.kill(pid, signal.SIGKILL)

@@ -57,6 +57,11 @@ def _on(entry: dict[str, Any] | None, split: str) -> str:
     return f"{_fmt(part['mu_r'])} ± {_fmt(part['sigma_r'], 2)}"
 
 
+def _both(entry: dict[str, Any], gated: str, split: str) -> list[str]:
+    """The search and test cells of a reseeded entry: ``gated`` on the split that decided."""
+    return [gated if on == split else _on(entry, on) for on in ("search", "test")]
+
+
 def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: list[PlottedArm]) -> list[str]:
     """The paper's Tables 2 and 3: one row per arm, the reseeded headline last. With a sealed test
     split, a column per split: the search split (selected on) and the test split (gated on)."""
@@ -129,8 +134,7 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
         gated = f"**{_fmt(shown['mu_r'])} ± {_fmt(shown['sigma_r'], 2)}**"
         row(
             f"Agent, reseeded (n={shown['n']})",
-            gated if split == "search" else _on(shown, "search"),
-            gated if split == "test" else _on(shown, "test"),
+            *_both(shown, gated, split),
             f"{shown['n_feasible']} of {shown['n']}",
             f"**{shown['margin']:.1f}σ{f' on {split}' if sealed else ''}, {verdict}**",
         )
@@ -143,8 +147,7 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
             gated = f"{_fmt(pruned['mu_r'])} ± {_fmt(pruned['sigma_r'], 2)}"
             row(
                 f"Pruned recipe{which}, reseeded (n={pruned['n']})",
-                gated if split == "search" else _on(pruned, "search"),
-                gated if split == "test" else _on(pruned, "test"),
+                *_both(pruned, gated, split),
                 f"{pruned['n_feasible']} of {pruned['n']}",
                 f"{pruned['margin']:.1f}σ, {verdict}",
             )
@@ -209,13 +212,7 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
         excluded = f"{c['n_failed']} failed, {c['n_parity_excluded']} parity"
         mark = " (promoted)" if c["config_id"] == verify["promoted"] else ""
         gated = _mean_sd(c["mu_r"], c["sigma_r"], c["n"])
-        cells = (
-            (gated if split == "search" else _on(c, "search"))
-            + " | "
-            + (gated if split == "test" else _on(c, "test"))
-            if sealed
-            else gated
-        )
+        cells = " | ".join(_both(c, gated, split)) if sealed else gated
         lines.append(
             f"| {c['config_id']}{mark} | {_changes(c['config'], family)} | {_fmt(c['source']['metric'])} "
             f"| {cells} | {c['margin']:.2f} | {c['n_feasible']} of {c['n']} | {excluded} | {c['reason']} |"
