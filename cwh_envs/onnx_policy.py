@@ -18,6 +18,7 @@ cwh-autoresearch[onnx]``).
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import io
 import json
@@ -135,6 +136,42 @@ def action_difference(act, exported: OnnxPolicy, obs_mean, obs_std, rows: int = 
         np.float32
     )
     return float(np.abs(exported(obs) - np.asarray(act(obs), dtype=np.float64)).max())
+
+
+def export_checked(
+    policy,
+    path: str | os.PathLike,
+    metadata: dict[str, Any],
+    source: str | os.PathLike,
+    *,
+    rows: int = 1024,
+    tolerance: float = 1e-5,
+) -> dict[str, Any]:
+    """Export a family's trained ``policy`` (a ``Policy`` with ``obs_mean``, ``obs_std`` and ``act``)
+    with :func:`export_policy`, then hold the file to the torch policy on ``rows`` observations.
+
+    The metadata gains the sha256 of ``source`` (the policy.pt it came from) and the torch version.
+    A file whose actions differ by more than ``tolerance`` is deleted and ValueError raised. Returns
+    the one-line summary the families' export.py print (``EXPORTED: {...}``).
+    """
+    import torch
+
+    metadata = {
+        **metadata,
+        "policy_sha256": hashlib.sha256(Path(source).read_bytes()).hexdigest(),
+        "torch": torch.__version__,
+    }
+    export_policy(policy, policy.obs_mean, policy.obs_std, path, metadata)
+    gap = action_difference(policy.act, OnnxPolicy(path), policy.obs_mean, policy.obs_std, rows)
+    if not gap <= tolerance:
+        Path(path).unlink()
+        raise ValueError(f"the ONNX policy differs from the torch policy by {gap:.3g} (> {tolerance})")
+    return {
+        "onnx": str(path),
+        "task": metadata.get("task"),
+        "runtime_cbf_filter": metadata.get("runtime_cbf_filter"),
+        "max_action_difference": gap,
+    }
 
 
 def _decode(value: str) -> Any:

@@ -15,6 +15,7 @@ export itself, the actions on the torch flight's own observations to 1e-6.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import json
 import os
@@ -35,7 +36,7 @@ onnx = pytest.importorskip("onnx", reason="the optional extra 'onnx' is not inst
 pytest.importorskip("onnxruntime", reason="the optional extra 'onnx' is not installed")
 torch = pytest.importorskip("torch")
 
-from cwh_envs.onnx_policy import OnnxPolicy, action_difference, export_policy  # noqa: E402
+from cwh_envs.onnx_policy import OnnxPolicy, action_difference, export_checked, export_policy  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 METRICS = {"rendezvous": "mean_terminal_distance", "docking": "score"}
@@ -189,6 +190,34 @@ def test_export_policy_standardises_clips_and_keeps_metadata(tmp_path):
     assert np.abs(actions - act(obs)).max() <= 1e-5
     assert action_difference(act, policy, mean, std) <= 1e-5
     assert action_difference(lambda o: act(o) * 0.5, policy, mean, std) > 0.1  # the check can fail
+
+
+def test_export_checked_stamps_the_source_and_deletes_a_file_that_flies_differently(tmp_path):
+    torch.manual_seed(0)
+
+    class Policy(torch.nn.Sequential):  # a family Policy's interface: statistics and act
+        obs_mean, obs_std = np.zeros(4), np.ones(4)
+
+        def act(self, obs):
+            with torch.no_grad():
+                return np.clip(self(torch.as_tensor(obs, dtype=torch.float32)).double().numpy(), -1, 1)
+
+    policy = Policy(torch.nn.Linear(4, 3))
+    source = tmp_path / "policy.pt"
+    torch.save(policy.state_dict(), source)
+    summary = export_checked(
+        policy, tmp_path / "p.onnx", {"task": "toy", "runtime_cbf_filter": False}, source
+    )
+    assert summary["task"] == "toy" and summary["max_action_difference"] <= 1e-5
+    stamped = OnnxPolicy(tmp_path / "p.onnx").metadata
+    assert stamped["policy_sha256"] == hashlib.sha256(source.read_bytes()).hexdigest()
+    assert stamped["torch"] == torch.__version__
+
+    drifting = Policy(torch.nn.Linear(4, 3))
+    drifting.act = lambda obs: Policy.act(drifting, obs) + 0.1  # flies differently from its graph
+    with pytest.raises(ValueError, match=r"differs from the torch policy by 0\.1 "):
+        export_checked(drifting, tmp_path / "q.onnx", {"task": "toy"}, source)
+    assert not (tmp_path / "q.onnx").exists()
 
 
 def test_onnx_policy_refuses_a_graph_that_is_not_an_exported_policy(tmp_path):

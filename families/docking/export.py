@@ -14,7 +14,6 @@ checked against the torch policy on 1024 observations; one summary line is print
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -22,7 +21,7 @@ from pathlib import Path
 import torch
 import train
 
-from cwh_envs.onnx_policy import OnnxPolicy, action_difference, export_policy
+from cwh_envs.onnx_policy import export_checked
 
 ENV_ID = "CWHDockKOZ-v0"
 CHECK_ROWS = 1024  # observations the exported file is compared with the torch policy on
@@ -54,22 +53,13 @@ def main() -> None:
         "metric": train.METRIC,
         "config": saved["config"],
         "record": {key: saved["record"].get(key) for key in ("run_id", "seed", train.METRIC, "eval_split")},
-        "policy_sha256": hashlib.sha256(source.read_bytes()).hexdigest(),
-        "torch": torch.__version__,
     }
-    export_policy(policy, policy.obs_mean, policy.obs_std, args.onnx, metadata)
-    gap = action_difference(policy.act, OnnxPolicy(args.onnx), policy.obs_mean, policy.obs_std, CHECK_ROWS)
-    if not gap <= CHECK_TOLERANCE:
-        args.onnx.unlink()
-        raise SystemExit(
-            f"export.py: the ONNX policy differs from the torch policy by {gap:.3g} (> {CHECK_TOLERANCE})"
+    try:
+        summary = export_checked(
+            policy, args.onnx, metadata, source, rows=CHECK_ROWS, tolerance=CHECK_TOLERANCE
         )
-    summary = {
-        "onnx": str(args.onnx),
-        "task": train.TASK,
-        "runtime_cbf_filter": cbf,
-        "max_action_difference": gap,
-    }
+    except ValueError as err:
+        raise SystemExit(f"export.py: {err}") from None
     print("EXPORTED: " + json.dumps(summary), flush=True)
 
 

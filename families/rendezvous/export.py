@@ -13,7 +13,6 @@ rendezvous has no keep-out). Before it is kept, the file is checked against the 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 from pathlib import Path
@@ -21,7 +20,7 @@ from pathlib import Path
 import torch
 import train
 
-from cwh_envs.onnx_policy import OnnxPolicy, action_difference, export_policy
+from cwh_envs.onnx_policy import export_checked
 
 ENV_ID = "CWHRendezvous-v0"
 CHECK_ROWS = 1024  # observations the exported file is compared with the torch policy on
@@ -39,35 +38,25 @@ def main() -> None:
     policy, saved = train.load_policy(args.policy)
     if saved["task"] != train.TASK:
         raise SystemExit(f"export.py: {args.policy} holds a {saved['task']} policy, not {train.TASK}")
-    cbf = False  # no keep-out, no filter
     source = args.policy / "policy.pt" if args.policy.is_dir() else args.policy
     metadata = {
         "task": train.TASK,
         "env_id": ENV_ID,
         "observation": "[x, y, z, vx, vy, vz, tau] float32 (N, 7), as the env shows it; standardised in the graph",
         "action": "thrust / u_max per axis, clipped to [-1, 1], float32 (N, 3), as the env takes it",
-        "runtime_cbf_filter": cbf,
+        "runtime_cbf_filter": False,  # no keep-out, no filter
         "cbf_margin": None,
         "problem": train.PROBLEM.as_dict(),
         "metric": train.METRIC,
         "config": saved["config"],
         "record": {key: saved["record"].get(key) for key in ("run_id", "seed", train.METRIC, "eval_split")},
-        "policy_sha256": hashlib.sha256(source.read_bytes()).hexdigest(),
-        "torch": torch.__version__,
     }
-    export_policy(policy, policy.obs_mean, policy.obs_std, args.onnx, metadata)
-    gap = action_difference(policy.act, OnnxPolicy(args.onnx), policy.obs_mean, policy.obs_std, CHECK_ROWS)
-    if not gap <= CHECK_TOLERANCE:
-        args.onnx.unlink()
-        raise SystemExit(
-            f"export.py: the ONNX policy differs from the torch policy by {gap:.3g} (> {CHECK_TOLERANCE})"
+    try:
+        summary = export_checked(
+            policy, args.onnx, metadata, source, rows=CHECK_ROWS, tolerance=CHECK_TOLERANCE
         )
-    summary = {
-        "onnx": str(args.onnx),
-        "task": train.TASK,
-        "runtime_cbf_filter": cbf,
-        "max_action_difference": gap,
-    }
+    except ValueError as err:
+        raise SystemExit(f"export.py: {err}") from None
     print("EXPORTED: " + json.dumps(summary), flush=True)
 
 
