@@ -22,7 +22,7 @@ from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, Usa
 from autoresearch.proposers.capabilities import capabilities
 from autoresearch.proposers.pricing import Price, checked_counts, cost_usd, load_prices, max_charge
 from autoresearch.proposers.prompting import SYSTEM_PROMPT, render_prompt
-from autoresearch.proposers.retry import classify, error_text
+from autoresearch.proposers.retry import sdk_error
 from autoresearch.proposers.tools import anthropic_tools, parse_tool_call, safe_text
 
 DEFAULT_MODEL = "claude-sonnet-5-5"
@@ -40,18 +40,6 @@ def http_timeout(read_s: float) -> httpx2.Timeout:
     """Connect fast; wait ``read_s`` for the next bytes of a reply (a non-streamed reply sends them
     when it is done, so read_s must exceed the slowest legitimate reply)."""
     return httpx2.Timeout(connect=10.0, read=read_s, write=60.0, pool=60.0)
-
-
-def _raise_transport(err: anthropic.APIError) -> Proposal:
-    if isinstance(err, anthropic.APIStatusError):
-        verdict = classify(err.status_code, err.message, err.response.headers)
-    elif isinstance(err, anthropic.APIConnectionError):
-        verdict = classify(None, str(err) or type(err).__name__)
-    else:
-        verdict = None
-    if verdict is not None:
-        raise verdict from err
-    return Proposal(kind="invalid", error=f"api error: {error_text(str(err))}")
 
 
 class AnthropicProposer(Proposer):
@@ -134,7 +122,7 @@ class AnthropicProposer(Proposer):
         try:
             reply = self.client.messages.create(**self.request(context))
         except anthropic.APIError as err:
-            return _raise_transport(err)
+            return sdk_error(err, anthropic)
         usage = self._usage(reply.usage)
         if reply.stop_reason == "refusal":
             details = reply.stop_details

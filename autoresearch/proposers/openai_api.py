@@ -35,7 +35,7 @@ from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, Usa
 from autoresearch.proposers.capabilities import capabilities
 from autoresearch.proposers.pricing import Price, checked_counts, cost_usd, load_prices, max_charge, price_of
 from autoresearch.proposers.prompting import SYSTEM_PROMPT, render_context
-from autoresearch.proposers.retry import classify, error_text
+from autoresearch.proposers.retry import sdk_error
 from autoresearch.proposers.tools import PROPOSE, STOP, openai_tools, parse_tool_call, safe_text
 
 # The newest GPT whose Chat Completions endpoint takes function tools without a reasoning_effort
@@ -46,18 +46,6 @@ PROFILES = ("auto", "cloud", "local")
 TRUNCATION_RATIO = 0.5
 LOCAL_CONTEXT_TOKENS = 32_768  # what the docs ask a local server to give the model
 _JSON_OBJECT = re.compile(r"\{.*\}", re.DOTALL)
-
-
-def _raise_transport(err: openai.APIError) -> Proposal:
-    if isinstance(err, openai.APIStatusError):
-        verdict = classify(err.status_code, f"{err.message} {err.code or ''}", err.response.headers)
-    elif isinstance(err, openai.APIConnectionError):
-        verdict = classify(None, str(err) or type(err).__name__)
-    else:
-        verdict = None
-    if verdict is not None:
-        raise verdict from err
-    return Proposal(kind="invalid", error=f"api error: {error_text(str(err))}")
 
 
 def _prose_call(text: str) -> tuple[str, Any] | None:
@@ -145,7 +133,7 @@ class OpenAIProposer(Proposer):
         try:
             reply = self.client.chat.completions.create(**body)
         except openai.APIError as err:
-            return _raise_transport(err)
+            return sdk_error(err, openai, with_code=True)
         usage = self._usage(reply.usage)
         notes: dict[str, Any] = {}
         sent_chars = len(json.dumps(body["messages"])) + len(json.dumps(body["tools"]))

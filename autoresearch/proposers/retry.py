@@ -20,6 +20,7 @@ import re
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from types import ModuleType
 
 from autoresearch.proposers.base import FatalAPIError, Proposal, TransientAPIError
 from autoresearch.proposers.tools import safe_text
@@ -31,6 +32,22 @@ TRANSIENT_STATUS = frozenset({408, 409, 429})
 def error_text(message: str) -> str:
     """A server's error message on one line, short and safe to print."""
     return safe_text(" ".join(str(message).split())[:500])
+
+
+def sdk_error(err: Exception, sdk: ModuleType, *, with_code: bool = False) -> Proposal:
+    """An error of the anthropic or openai SDK (both generated with the same error classes):
+    raise what :func:`classify` makes of it, else an invalid proposal naming it. ``with_code``
+    adds the error's ``code`` to the message (OpenAI puts e.g. ``insufficient_quota`` there)."""
+    if isinstance(err, sdk.APIStatusError):
+        message = f"{err.message} {err.code or ''}" if with_code else err.message
+        verdict = classify(err.status_code, message, err.response.headers)
+    elif isinstance(err, sdk.APIConnectionError):
+        verdict = classify(None, str(err) or type(err).__name__)
+    else:
+        verdict = None
+    if verdict is not None:
+        raise verdict from err
+    return Proposal(kind="invalid", error=f"api error: {error_text(str(err))}")
 
 
 def _retry_after(headers: Mapping[str, str] | None) -> float | None:
