@@ -1,3 +1,8 @@
 """AutoResearch: an LLM research agent that drives any directory following the family contract."""
 
-__version__ = "0.1.0"
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    __version__ = version("cwh-autoresearch")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"

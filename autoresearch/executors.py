@@ -19,6 +19,8 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
+from autoresearch.extras import require
+
 # A Ray task's cancellation is checked this often; a cancelled task has this long to kill its run
 # (the runner's SIGTERM grace, and then some) before its worker is killed.
 CANCEL_POLL_S = 0.2
@@ -110,10 +112,7 @@ class RayExecutor(Executor):
         cpus_per_task: float = 1,
         gpus_per_task: float | None = None,
     ):
-        try:
-            import ray
-        except ImportError as exc:  # the optional extra
-            raise RuntimeError('--executor ray needs ray: pip install "cwh-autoresearch[ray]"') from exc
+        ray = require("ray", "ray", "--executor ray")
         if workers < 1:
             raise ValueError(f"--workers must be >= 1 (got {workers})")
         self._ray = ray

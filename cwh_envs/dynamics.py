@@ -12,7 +12,6 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy.linalg import expm
 
 MEAN_MOTION = 1.13e-3  # rad/s, low Earth orbit
 TIME_STEP = 10.0  # s
@@ -56,7 +55,10 @@ def _cached_matrices(n: float, dt: float, mass: float, discretization: str) -> t
     if discretization == "euler":
         a, b = np.eye(6) + dt * a_c, dt * b_c
     else:
-        # Zero-order hold: expm of the augmented [[A_c, B_c], [0, 0]] block gives A and B at once.
+        # Zero-order hold: expm of the augmented [[A_c, B_c], [0, 0]] block gives A and B at once
+        # (scipy.linalg imported here: it costs a quarter of a second, the default is Euler).
+        from scipy.linalg import expm
+
         block = np.zeros((9, 9))
         block[:6, :6], block[:6, 6:] = a_c, b_c
         phi = expm(block * dt)

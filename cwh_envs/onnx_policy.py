@@ -19,6 +19,7 @@ cwh-autoresearch[onnx]``).
 from __future__ import annotations
 
 import hashlib
+import importlib
 import inspect
 import io
 import json
@@ -48,8 +49,7 @@ def export_policy(
     ``Policy``, put in eval mode here); values of ``metadata`` that are not strings are stored as
     JSON. The file is checked with ``onnx.checker`` before it is returned.
     """
-    import onnx
-    import torch
+    onnx, torch = _optional("onnx", "onnx"), _optional("torch", "families")
 
     class Deployed(torch.nn.Module):
         def __init__(self) -> None:
@@ -99,7 +99,7 @@ class OnnxPolicy:
     """
 
     def __init__(self, path: str | os.PathLike, threads: int = 1) -> None:
-        import onnxruntime
+        onnxruntime = _optional("onnxruntime", "onnx")
 
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads
@@ -154,8 +154,7 @@ def export_checked(
     A file whose actions differ by more than ``tolerance`` is deleted and ValueError raised. Returns
     the one-line summary the families' export.py print (``EXPORTED: {...}``).
     """
-    import torch
-
+    torch = _optional("torch", "families")
     metadata = {
         **metadata,
         "policy_sha256": hashlib.sha256(Path(source).read_bytes()).hexdigest(),
@@ -172,6 +171,17 @@ def export_checked(
         "runtime_cbf_filter": metadata.get("runtime_cbf_filter"),
         "max_action_difference": gap,
     }
+
+
+def _optional(module: str, extra: str):
+    """``module``, or an ImportError naming the extra that installs it."""
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as err:
+        raise ModuleNotFoundError(
+            f"cwh_envs.onnx_policy needs {module}, which is not installed: pip install 'cwh-autoresearch[{extra}]'",
+            name=err.name,
+        ) from err
 
 
 def _decode(value: str) -> Any:

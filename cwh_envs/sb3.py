@@ -32,7 +32,14 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode
-from stable_baselines3.common.vec_env import VecEnv
+
+try:
+    from stable_baselines3.common.vec_env import VecEnv
+except ModuleNotFoundError as err:
+    raise ModuleNotFoundError(
+        "cwh_envs.sb3 needs stable-baselines3, which is not installed: pip install 'cwh-autoresearch[sb3]'",
+        name=err.name,
+    ) from err
 
 # Per-row attributes of the single envs, served from the native env's batch.
 _ROW_ATTRIBUTES = {"state": "states", "goal": "goals"}

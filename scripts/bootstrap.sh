@@ -21,7 +21,7 @@ fi
 stamp="$venv/.cwh-installed"
 if [ ! -f "$stamp" ] || [ "$root/pyproject.toml" -nt "$stamp" ]; then
   echo "[setup] installing cwh-autoresearch and its dependencies"
-  $pip install -q -e "$root[${EXTRAS:-dev}]"
+  $pip install -q -e "$root[${EXTRAS:-all,dev}]"
   touch "$stamp"
 fi
 export PATH="$venv/bin:$PATH"

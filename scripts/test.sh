@@ -3,11 +3,12 @@
 #   bash scripts/test.sh -m "not slow"   # the fast tier: no real training runs, no Ray (CI runs all)
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-EXTRAS="${EXTRAS:-dev,ray}" source "$root/scripts/bootstrap.sh"
+EXTRAS="${EXTRAS:-all,dev}" source "$root/scripts/bootstrap.sh"
 cd "$root"
 echo "[test] ruff check"; ruff check .
 echo "[test] ruff format --check"; ruff format --check .
 echo "[test] pytest"
-# Two workers' worth of cores: keep BLAS/torch from oversubscribing them.
-export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MPLBACKEND=Agg
+# Two workers' worth of cores: keep BLAS/torch from oversubscribing them. Every extra is installed,
+# so a test that needs one fails rather than skips (tests/conftest.py).
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MPLBACKEND=Agg CWH_REQUIRE_EXTRAS=1
 exec python -m pytest -q "$@"

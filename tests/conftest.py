@@ -1,16 +1,58 @@
-"""Shared by every test: a private data cache for the run, and one Ray instance for the tests that use Ray."""
+"""Shared by every test: a private data cache for the run, one Ray instance for the tests that use
+Ray, and the optional extras.
+
+A test that needs an extra says so with ``@pytest.mark.needs("families", ...)``; a module that
+cannot even be imported without one, with ``pytestmark = pytest.mark.needs(...)`` on a line of its
+own (read here before the module is imported). Without the extra the test or the module is
+skipped, naming it, so that the base install runs the rest (.ci/run's lowest-floors and
+Python-matrix jobs); with ``CWH_REQUIRE_EXTRAS=1`` (the README's test command, which installs them
+all) a missing extra fails instead.
+"""
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 
 import pytest
+from extras import EXTRAS, missing_extras, needs_module, required, skip_or_fail
 
 from autoresearch.executors import keeping_signal_handlers
 
 _CACHE_ENV = "CWH_ENVS_CACHE"
+_MODULE_NEEDS = re.compile(r"^pytestmark = .*pytest\.mark\.needs\(([^)]*)\)", re.MULTILINE)
+
+
+class _NotImportable(pytest.Module):
+    """A test module that needs a missing extra: reported as skipped, never imported."""
+
+    missing: list[str]
+
+    def collect(self):
+        skip_or_fail(self.missing, module_level=True)
+        return []
+
+
+def pytest_pycollect_makemodule(module_path, parent):
+    found = _MODULE_NEEDS.search(module_path.read_text(encoding="utf-8"))
+    missing = missing_extras([e.strip().strip("\"'") for e in found.group(1).split(",")]) if found else []
+    if missing and not required():
+        module = _NotImportable.from_parent(parent, path=module_path)
+        module.missing = missing
+        return module
+    return None
+
+
+def pytest_runtest_setup(item):
+    for marker in item.iter_markers("needs"):
+        unknown = set(marker.args) - set(EXTRAS)
+        if unknown:
+            pytest.fail(f"unknown extra(s) {sorted(unknown)} in @pytest.mark.needs (known: {sorted(EXTRAS)})")
+        missing = missing_extras(marker.args)
+        if missing:
+            skip_or_fail(missing)
 
 
 def pytest_configure(config):
@@ -35,7 +77,7 @@ def pytest_unconfigure(config):
 def ray_instance():
     """One local Ray instance for the whole run (RayExecutor reuses a running one), with our signal
     handlers kept: ray.init would leave its own SIGTERM handler behind."""
-    ray = pytest.importorskip("ray", reason="the optional extra 'ray' is not installed")
+    ray = needs_module("ray", "ray")
     with keeping_signal_handlers():
         ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield ray

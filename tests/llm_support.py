@@ -10,9 +10,8 @@ import json
 from collections.abc import Callable
 from typing import Any
 
-import anthropic
 import httpx2
-import openai
+from extras import needs_module
 
 from autoresearch.loop.context import shown_registry
 from autoresearch.proposers import prompting
@@ -136,11 +135,15 @@ class FakeServer:
         return httpx2.Client(transport=httpx2.MockTransport(self))
 
 
-def anthropic_client(server: FakeServer, *, max_retries: int = 0) -> anthropic.Anthropic:
+def anthropic_client(server: FakeServer, *, max_retries: int = 0):
+    """A real Anthropic client whose HTTP goes to ``server`` (the test skips without the [llm] extra)."""
+    anthropic = needs_module("anthropic", "llm")
     return anthropic.Anthropic(api_key="test-key", max_retries=max_retries, http_client=server.http_client())
 
 
-def openai_client(server: FakeServer, *, max_retries: int = 0) -> openai.OpenAI:
+def openai_client(server: FakeServer, *, max_retries: int = 0):
+    """A real OpenAI client whose HTTP goes to ``server`` (the test skips without the [llm] extra)."""
+    openai = needs_module("openai", "llm")
     return openai.OpenAI(api_key="test-key", max_retries=max_retries, http_client=server.http_client())
 
 

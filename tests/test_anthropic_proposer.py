@@ -28,6 +28,8 @@ from autoresearch.proposers.base import FatalAPIError, TransientAPIError
 from autoresearch.proposers.pricing import FALLBACK_PRICE, Price
 from autoresearch.proposers.tools import PROPOSE, STOP
 
+pytestmark = pytest.mark.needs("llm")
+
 
 def _proposer(server: FakeServer, **kwargs) -> AnthropicProposer:
     return AnthropicProposer(REGISTRY, client=anthropic_client(server), **kwargs)

@@ -11,6 +11,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_llm_prompt import campaign  # noqa: E402
 
+pytestmark = pytest.mark.needs("llm")
+
 
 @pytest.mark.parametrize("kind", ["anthropic", "openai"])
 def test_most_input_is_cached_after_the_first_turns_and_caching_saves_money(kind):

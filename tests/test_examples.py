@@ -216,6 +216,7 @@ def one_torch_thread():
     torch.set_num_threads(threads)
 
 
+@pytest.mark.needs("sb3")
 def test_sb3_policy_batch_matches_the_env(one_torch_thread):
     """An SB3 model scored by the family's batch evaluation (sb3_compare's path) flies exactly as it
     does through the env itself: the native vector env with the CBF, from the same starts."""

@@ -125,10 +125,10 @@ def test_ray_results_are_identical_to_serial(ray_instance, toy, serial_rows, tmp
 
 
 @pytest.mark.slow
+@pytest.mark.needs("ray")
 def test_sigterm_under_ray_exits_130_as_documented(toy, tmp_path):
     """ray.init installs a SIGTERM handler that exits 15; the executor puts ours back. A process of
     its own: the executor must start Ray itself for the test to mean anything."""
-    pytest.importorskip("ray", reason="the optional extra 'ray' is not installed")
     out = tmp_path / "noise"
     cmd = [sys.executable, "-m", "autoresearch", "noise", "--family", str(toy.path), "--seeds", "2"]
     proc = subprocess.Popen(

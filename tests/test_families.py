@@ -97,6 +97,7 @@ def warm(tmp_path_factory):
     return made
 
 
+@pytest.mark.needs("families")
 @pytest.mark.parametrize("name", FAMILIES)
 def test_prepare_check_names_what_is_missing_then_passes_once_warm(name, tmp_path):
     family = family_copy(name, tmp_path)
@@ -273,6 +274,7 @@ def _flight(train, terminal_distance, *, violation=0.0, clearance=3.0, speed=0.0
     )
 
 
+@pytest.mark.needs("families")
 def test_docking_score_and_strict_gate():
     train = import_train(ROOT / "families" / "docking" / "train.py")
     horizon, n = train.PROBLEM.horizon, 10

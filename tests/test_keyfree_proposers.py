@@ -5,8 +5,10 @@ import random
 import statistics
 
 import pytest
+from extras import missing_extras
 from loop_helpers import TOY_FAMILY
 
+from autoresearch.extras import MissingExtra
 from autoresearch.proposers import make_proposer
 from autoresearch.proposers.base import ProposerContext, RunOutcome
 from autoresearch.proposers.gp import GPProposer
@@ -93,7 +95,11 @@ def test_make_proposer():
     registry = json.loads((TOY_FAMILY / "family.json").read_text())
     assert isinstance(make_proposer("random", registry, seed=1), RandomProposer)
     assert isinstance(make_proposer("tpe", registry, seed=1), TPEProposer)
-    assert isinstance(make_proposer("gp", registry, seed=1), GPProposer)
+    if missing_extras(["gp"]):  # the base install: one line naming the extra, before any search
+        with pytest.raises(MissingExtra, match=r"--proposer gp .* needs torch.*cwh-autoresearch\[gp\]"):
+            make_proposer("gp", registry, seed=1)
+    else:
+        assert isinstance(make_proposer("gp", registry, seed=1), GPProposer)
     with pytest.raises(ValueError, match="--space applies to the key-free proposers"):
         make_proposer("anthropic", registry, seed=1, space="bounds")
     with pytest.raises(ValueError, match="unknown proposer"):
@@ -112,7 +118,7 @@ def toy_outcomes(proposer, n, seed=0):
     return configs
 
 
-@pytest.mark.parametrize("name", ["random", "tpe", "gp"])
+@pytest.mark.parametrize("name", ["random", "tpe", pytest.param("gp", marks=pytest.mark.needs("gp"))])
 @pytest.mark.parametrize("space", ["bounds", "random-range"])
 def test_every_key_free_arm_searches_the_chosen_space(name, space):
     registry = json.loads((TOY_FAMILY / "family.json").read_text())
@@ -132,6 +138,7 @@ def test_every_key_free_arm_searches_the_chosen_space(name, space):
             assert max(epochs) > 50 or min(epochs) < 5
 
 
+@pytest.mark.needs("gp")
 def test_gp_resume_asks_the_same_and_pending_trials_move_it():
     registry = json.loads((TOY_FAMILY / "family.json").read_text())
     gp = GPProposer(registry, seed=2, n_startup_trials=4)
@@ -190,7 +197,7 @@ def test_graded_constraints_are_the_trials_constraints_and_failures_take_the_wor
     assert [t.constraints for t in tpe.trials] == [{"feasible": v} for v in (1.0, 1.0, 0.0, 1.0)]
 
 
-@pytest.mark.parametrize("cls", [TPEProposer, GPProposer])
+@pytest.mark.parametrize("cls", [TPEProposer, pytest.param(GPProposer, marks=pytest.mark.needs("gp"))])
 def test_graded_constraints_steer_the_search_towards_feasibility_before_any_run_is_feasible(cls):
     """Feasible needs X >= 0.9 and Y >= 0.9; no draw so far is, and the metric says nothing about
     either. Told how far each draw missed, the model-based arms move towards that corner; told

@@ -22,6 +22,7 @@ def _body(out: str) -> dict:
     return json.loads(out.split("\n# dry run")[0])
 
 
+@pytest.mark.needs("llm")
 def test_dry_run_prints_the_first_request_and_the_cost_without_a_key(toy, tmp_path, monkeypatch, capsys):
     monkeypatch.delenv("ANTHROPIC_API_KEY", raising=False)
     campaign = tmp_path / "c"
@@ -52,6 +53,7 @@ def test_dry_run_prints_the_first_request_and_the_cost_without_a_key(toy, tmp_pa
     assert "estimated cost of 30 iterations: $" in out and "with prompt caching" in out
 
 
+@pytest.mark.needs("llm")
 def test_dry_run_for_a_local_server(toy, tmp_path, monkeypatch, capsys):
     monkeypatch.delenv("OPENAI_API_KEY", raising=False)
     code = main(
@@ -76,6 +78,7 @@ def test_dry_run_for_a_local_server(toy, tmp_path, monkeypatch, capsys):
     assert "$0.00 with prompt caching" in out
 
 
+@pytest.mark.needs("llm")
 def test_llm_flags_reach_the_proposer_and_are_kept(toy, tmp_path, monkeypatch):
     monkeypatch.setenv("OPENAI_API_KEY", "sk-test")
     campaign = tmp_path / "c"
@@ -100,6 +103,10 @@ def test_a_flag_for_another_proposer_is_a_clear_error(toy, tmp_path, capsys):
         ]
     )
     assert code == 2 and "--effort applies to the anthropic proposer" in capsys.readouterr().err
+
+
+@pytest.mark.needs("llm")  # without the SDK, that is what the one line names
+def test_an_anthropic_flag_for_the_openai_proposer_is_a_clear_error(toy, tmp_path, capsys):
     code = main(
         [
             "loop",

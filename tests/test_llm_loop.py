@@ -8,6 +8,7 @@ import io
 import time
 
 import httpx2
+import pytest
 from llm_support import FakeServer, anthropic_client, anthropic_error, messages_reply, tool_use
 from loop_helpers import copy_toy
 
@@ -21,6 +22,8 @@ from autoresearch.proposers.base import ProposerContext, projected_cost
 from autoresearch.proposers.enqueued import EnqueuedProposer
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.proposers.tools import PROPOSE
+
+pytestmark = pytest.mark.needs("llm")
 
 
 def _proposal(epochs: int, hypothesis: str = "More epochs lower the loss.") -> dict:

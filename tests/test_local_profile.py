@@ -11,6 +11,8 @@ from llm_support import PROPOSAL_INPUT, REGISTRY, FakeServer, chat_reply, make_c
 from autoresearch.proposers.openai_api import OpenAIProposer
 from autoresearch.proposers.tools import LOCAL_UNSUPPORTED, PROPOSE
 
+pytestmark = pytest.mark.needs("llm")
+
 
 def _keywords(value, found=None):
     found = set() if found is None else found

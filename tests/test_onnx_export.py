@@ -27,14 +27,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from extras import needs_module
 
 from cwh_envs.datasets import evaluation_set
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.rollout import fly
 
-onnx = pytest.importorskip("onnx", reason="the optional extra 'onnx' is not installed")
-pytest.importorskip("onnxruntime", reason="the optional extra 'onnx' is not installed")
-torch = pytest.importorskip("torch")
+onnx = needs_module("onnx", "onnx")
+torch = needs_module("torch", "families")
 
 from cwh_envs.onnx_policy import OnnxPolicy, action_difference, export_checked, export_policy  # noqa: E402
 

@@ -27,6 +27,8 @@ from autoresearch.proposers.openai_api import DEFAULT_MODEL, OpenAIProposer
 from autoresearch.proposers.pricing import Price
 from autoresearch.proposers.tools import PROPOSE, STOP
 
+pytestmark = pytest.mark.needs("llm")
+
 PROPOSE_CALL = (PROPOSE, json.dumps(PROPOSAL_INPUT))
 
 

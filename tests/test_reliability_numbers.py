@@ -19,7 +19,6 @@ from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.protocol import check_record, parse_progress
 from autoresearch.loop.runner import run_experiment
 from autoresearch.loop.stopping import Budgets
-from autoresearch.proposers.openai_api import OpenAIProposer
 from autoresearch.proposers.tools import PROPOSE
 from autoresearch.space import SearchSpace, SpaceError, ValidationError
 
@@ -62,7 +61,10 @@ def _meta(toy, campaign, proposer: str) -> None:
 def _openai_loop(toy, campaign, server: FakeServer, max_iters: int):
     family = Family.load(toy)
     _meta(toy, campaign, "openai")
-    proposer = OpenAIProposer(family.registry, client=openai_client(server), model="gpt-5.4")
+    client = openai_client(server)  # the test skips here without the [llm] extra
+    from autoresearch.proposers.openai_api import OpenAIProposer
+
+    proposer = OpenAIProposer(family.registry, client=client, model="gpt-5.4")
     settings = LoopSettings("openai", Budgets(max_iters=max_iters), timeout_per_run=60.0)
     Orchestrator(family, proposer, campaign, settings).run()
     return read_jsonl(campaign / "proposals.jsonl")

@@ -13,9 +13,9 @@ from loop_helpers import copy_toy, processes_naming
 
 
 @pytest.mark.slow
+@pytest.mark.needs("ray")
 @pytest.mark.parametrize("command", ["loop", "noise"])
 def test_sigterm_under_ray_cancels_the_runs_in_flight(tmp_path, command):
-    pytest.importorskip("ray", reason="the optional extra 'ray' is not installed")
     toy, out = copy_toy(tmp_path), tmp_path / "out"
     cmd = [sys.executable, "-m", "autoresearch", command, "--family", str(toy), "--executor", "ray"]
     cmd += ["--workers", "2"]

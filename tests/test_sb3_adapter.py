@@ -26,6 +26,8 @@ from cwh_envs import CBFSafetyFilter
 from cwh_envs.controllers import capped_speed_action
 from cwh_envs.sb3 import NativeVecEnv
 
+pytestmark = pytest.mark.needs("sb3")
+
 N = 3
 CASES = {  # name: env id, adapter kwargs, make_vec_env wrapper
     "rendezvous": ("cwh_envs:CWHRendezvous-v0", {}, None),

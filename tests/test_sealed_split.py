@@ -171,7 +171,7 @@ class Spy(Proposer):
         self.inner.tell(outcome)
 
 
-@pytest.mark.parametrize("name", ["random", "tpe", "gp"])
+@pytest.mark.parametrize("name", ["random", "tpe", pytest.param("gp", marks=pytest.mark.needs("gp"))])
 def test_no_key_free_proposer_sees_a_test_split_value(name, sealed, tmp_path):
     family, root, *_ = sealed
     arm = root.parent / f"{root.name}-random"
@@ -230,6 +230,7 @@ class _Handler(BaseHTTPRequestHandler):
         pass
 
 
+@pytest.mark.needs("llm")
 @pytest.mark.parametrize("name", ["anthropic", "openai"])
 def test_no_llm_request_carries_a_test_split_value(name, sealed, tmp_path):
     """The real CLI and the real SDK against a local server: every request body, and the dry run."""

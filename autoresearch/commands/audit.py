@@ -11,6 +11,7 @@ from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import (
     add_provenance_argument,
     describe_noise,
@@ -29,7 +30,7 @@ from autoresearch.loop.campaign_lock import CampaignLock
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "audit",
-        help="noise, verify, prune and the random arm for one campaign, then report.md",
+        help=SUMMARIES["audit"],
         description="Run the credibility audit of a campaign in order: seed noise (only if the family has "
         "none on the splits it has, or with --force), reseeded verification, leave-one-out pruning, the "
         "random-search arm; then write report.md and its figures. Each step is resumable and writes its part "

@@ -9,6 +9,7 @@ from pathlib import Path
 from autoresearch.audit.inputs import AuditError, open_campaign, provenance_report
 from autoresearch.campaign import CampaignError
 from autoresearch.campaign.check import check_campaign
+from autoresearch.commands import SUMMARIES
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
 from autoresearch.loop import repeats
@@ -18,7 +19,7 @@ from autoresearch.loop.campaign_lock import holder, not_a_directory
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "check",
-        help="validate a campaign's files (duplicates, gaps, torn lines) and say how to repair them",
+        help=SUMMARIES["check"],
         description="Check a campaign directory (or each campaign of a --repeats group): campaign.json and "
         "family.json readable; proposals.jsonl with iterations 1, 2, ... once each, whole lines, every "
         "recorded run with its run directory; runs.jsonl with whole lines, each run once and started by "

@@ -7,6 +7,7 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import positive_int
 from autoresearch.compare.inputs import CompareError, load_arms
 from autoresearch.compare.report import write_comparison
@@ -34,7 +35,7 @@ def _positive_float(text: str) -> float:
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "compare",
-        help="compare arms over their repeated campaigns (median, IQM, P(better), target)",
+        help=SUMMARIES["compare"],
         description="Score each arm over its repeats: best so far at every experiment budget as median and "
         "interquartile mean with 95% stratified-bootstrap intervals, the probability that one arm's final "
         "best beats another's, the fraction reaching the target and the experiments it took. A directory "

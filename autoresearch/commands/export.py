@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from autoresearch.campaign import CampaignError
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import error_exit
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
@@ -15,7 +16,7 @@ from autoresearch.journal import JournalError
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "export",
-        help="write a campaign to an Optuna journal file (optuna-dashboard, Optuna's plots)",
+        help=SUMMARIES["export"],
         description="Write (or bring up to date) the campaign as one Optuna study in a JournalStorage "
         "file: every run a trial with the family's distributions, its value or failure, PROGRESS as "
         "intermediate values, early-stopped runs pruned, graded constraints, and hypothesis, axes, verdict "

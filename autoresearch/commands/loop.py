@@ -12,8 +12,10 @@ from typing import Any
 
 from autoresearch import provenance
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, portable_path, session
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import error_exit
 from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
+from autoresearch.extras import require
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json
 from autoresearch.loop import repeats
@@ -83,7 +85,7 @@ def _queue_file(path: str) -> list[dict[str, Any]]:
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "loop",
-        help="run the agent loop on a family (one campaign)",
+        help=SUMMARIES["loop"],
         description="Run the agent loop on a family: propose, patch, run, record, until a stopping trigger fires.",
         epilog="Example: autoresearch loop --family docking --proposer tpe --max-iters 30",
     )
@@ -177,6 +179,8 @@ def _default_proposer() -> str:
 
 def _check_key(proposer: str, settings: dict[str, Any]) -> None:
     key = API_KEYS.get(proposer)
+    if key:  # the SDK first: a key is no use without it
+        require(proposer, "llm", f"--proposer {proposer}")
     if key and not os.environ.get(key) and not (proposer == "openai" and settings["base_url"]):
         raise UsageError(
             f"--proposer {proposer} needs {key} in the environment; the key-free proposers are {', '.join(KEY_FREE)}"

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import default_noise_dir, measure_noise
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import describe_noise, positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
@@ -16,7 +17,7 @@ from autoresearch.loop.campaign_lock import CampaignLock
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "noise",
-        help="measure a family's seed noise: its baseline over K fresh seeds",
+        help=SUMMARIES["noise"],
         description="Run the family's baseline configuration at K fresh seeds and write the mean and the "
         "Bessel-corrected standard deviation of the metric into the family's family.json (seed_noise). "
         "Resumable: a re-run skips the seeds already measured.",

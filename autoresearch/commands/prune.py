@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from autoresearch.audit.prune import NOISE_AT, Rule, prune
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.loop.campaign_lock import CampaignLock
@@ -13,7 +14,7 @@ from autoresearch.loop.campaign_lock import CampaignLock
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "prune",
-        help="find which edits of the promoted configuration carry the result",
+        help=SUMMARIES["prune"],
         description="Revert each edited parameter of the promoted configuration alone to its family default "
         "and decide keep / drop / drop-dagger in seed-noise units (escalating from one probe seed to two), "
         "then re-verify the pruned recipe at fresh seeds and publish it only if it clears the same gate "

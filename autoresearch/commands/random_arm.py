@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from autoresearch.audit.random_arm import default_arm_dir, run_random_arm
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import resolve_family
@@ -17,7 +18,7 @@ from autoresearch.space import SPACES
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "random",
-        help="run random search over the same surface and budget as a campaign",
+        help=SUMMARIES["random"],
         description="Random search over the family's editable surface from the same first experiment (the "
         "baseline), with the campaign's per-experiment timeout and experiment count, written as a campaign "
         "directory; then the verdict of paper Eq. verdict in seed-noise units.",

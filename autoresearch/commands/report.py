@@ -9,6 +9,7 @@ from pathlib import Path
 from autoresearch.audit.inputs import AuditError
 from autoresearch.audit.report import write_report
 from autoresearch.campaign.check import trail_problems
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import error_exit
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
@@ -18,7 +19,7 @@ from autoresearch.loop.campaign_lock import not_a_directory
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "report",
-        help="write report.md and its figures into a campaign directory",
+        help=SUMMARIES["report"],
         description="Write the audit report of a campaign: the audit table (seed noise, random arms, "
         "single-seed best, reseeded mean with its margin and PASS/FAIL), the mean difference with its "
         "confidence interval, the pruning decisions, and the search and recipe figures.",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from autoresearch.audit.verify import verify
+from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
 from autoresearch.executors import add_executor_arguments
 from autoresearch.family import SEARCH, TEST
@@ -14,7 +15,7 @@ from autoresearch.loop.campaign_lock import CampaignLock
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "verify",
-        help="reseed a campaign's top configurations at fresh seeds and promote the family best",
+        help=SUMMARIES["verify"],
         description="Rebuild the campaign's configurations from proposals.jsonl, rank them, re-run the top "
         "few at fresh seeds, gate each (margin m >= 2 seed-noise units and feasible on every seed) and "
         "promote the most reproducible passing one into the family's family.json (best).",

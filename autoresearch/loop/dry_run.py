@@ -7,6 +7,7 @@ import sys
 from typing import TextIO
 
 from autoresearch.campaign import CampaignMeta, CampaignState
+from autoresearch.extras import require
 from autoresearch.family import resolve_family, search_view
 from autoresearch.loop.context import build_context, shown_registry
 from autoresearch.loop.stopping import Budgets, closest_trigger
@@ -17,18 +18,16 @@ from autoresearch.proposers.llm_options import TYPICAL_OUTPUT_TOKENS, campaign_e
 def dry_run(meta: CampaignMeta, out: TextIO | None = None) -> int:
     """Print the first request the proposer would send and the estimated cost of the campaign."""
     out = out or sys.stdout
-    import anthropic  # the SDKs only when a dry run asks for them
-    import openai
-
     settings, name = meta.settings, meta.proposer
     if name not in ("anthropic", "openai"):
         raise ValueError(f"--dry-run shows an LLM's request; the {name!r} proposer sends none")
+    sdk = require(name, "llm", f"--proposer {name}")  # the SDK builds the request it would send
     family = resolve_family(meta.family)
     blind = settings["blind"]
     client = (
-        anthropic.Anthropic(api_key="dry-run")
+        sdk.Anthropic(api_key="dry-run")
         if name == "anthropic"
-        else openai.OpenAI(api_key="dry-run", base_url=settings["base_url"])
+        else sdk.OpenAI(api_key="dry-run", base_url=settings["base_url"])
     )
     proposer = make_proposer(
         name,

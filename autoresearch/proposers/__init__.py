@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from autoresearch.extras import require
 from autoresearch.proposers.base import Proposer
 
 PROPOSERS = ("anthropic", "gp", "openai", "random", "tpe")
@@ -47,16 +48,19 @@ def make_proposer(
 
         return TPEProposer(registry, seed=seed, space=space)
     if name == "gp":
+        require("torch", "gp", "--proposer gp (Optuna's GPSampler)")
         from autoresearch.proposers.gp import GPProposer
 
         return GPProposer(registry, seed=seed, space=space)
     if name == "anthropic":
         if base_url:
             raise ValueError("--base-url applies to the openai proposer only")
+        require("anthropic", "llm", "--proposer anthropic")
         from autoresearch.proposers.anthropic_api import AnthropicProposer
 
         return AnthropicProposer(registry, model=model, prices=prices, **llm_options)
     if name == "openai":
+        require("openai", "llm", "--proposer openai")
         from autoresearch.proposers.openai_api import OpenAIProposer
 
         return OpenAIProposer(registry, model=model, base_url=base_url, prices=prices, **llm_options)

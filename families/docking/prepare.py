@@ -9,7 +9,14 @@ cwh_envs.prepare builds and verifies them.
 
 import sys
 
-import train  # this directory's train.py: its constants (its run is guarded by __main__)
+try:
+    import train  # this directory's train.py: its constants (its run is guarded by __main__)
+except ModuleNotFoundError as err:  # the base install has no torch: say which extra brings it
+    if err.name != "torch":
+        raise
+    sys.exit(
+        "this family trains with torch, which is not installed: pip install 'cwh-autoresearch[families]'"
+    )
 
 from cwh_envs.prepare import DataNeeds, main
 

@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# The base install's fast tier on the oldest and newest Python the project claims, at both ends of
+# its dependency ranges (the second job of .ci/run):
+#   py3.10-lowest: every direct dependency at its lowest declared version (uv --resolution lowest-direct)
+#   py3.13-newest: every dependency at its newest release
+# Both install [llm,dev] (the base, the LLM SDKs, the test tools): no torch, so the tests that need
+# [families], [gp], [sb3], [onnx], [ray] or [dashboard] skip, naming the extra. The two run at once
+# (each is mostly one process); each job's install and test times are printed.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+work="${MATRIX_DIR:-$root/.matrix}"
+mkdir -p "$work"
+if [ ! -x "$work/uv/bin/uv" ]; then
+  python3 -m venv "$work/uv" && "$work/uv/bin/python" -m pip install -q uv
+fi
+uv="$work/uv/bin/uv"
+
+find_python() {  # uv's own discovery, then pyenv's versions
+  "$uv" python find --no-python-downloads "$1" 2>/dev/null && return
+  local found
+  found="$(ls -d "$(pyenv root 2>/dev/null || echo "$HOME/.pyenv")"/versions/"$1".*/bin/python"$1" 2>/dev/null | tail -1)"
+  [ -n "$found" ] && echo "$found" && return
+  echo "[matrix] Python $1 not found (install it, e.g. with pyenv): the project claims it" >&2
+  return 1
+}
+
+job() {  # job NAME PYTHON RESOLUTION
+  local name="$1" venv="$work/$1" start=$SECONDS
+  rm -rf "$venv"
+  "$uv" venv -q -p "$2" "$venv"
+  VIRTUAL_ENV="$venv" "$uv" pip install -q --resolution "$3" -e "$root[llm,dev]"
+  local installed=$((SECONDS - start)) status=0
+  (cd "$root" && OMP_NUM_THREADS=1 MPLBACKEND=Agg "$venv/bin/python" -m pytest -q -m "not slow" -p no:cacheprovider) \
+    > "$work/$name.log" 2>&1 || status=$?
+  echo "[matrix] $name: $(tail -1 "$work/$name.log") (install ${installed} s, tests $((SECONDS - start - installed)) s)"
+  [ "$status" -eq 0 ] || { tail -40 "$work/$name.log"; return "$status"; }
+}
+
+py310="$(find_python 3.10)"
+py313="$(find_python 3.13)"
+job py3.10-lowest "$py310" lowest-direct & lowest=$!
+job py3.13-newest "$py313" highest & newest=$!
+failed=0
+wait "$lowest" || failed=1
+wait "$newest" || failed=1
+exit "$failed"
