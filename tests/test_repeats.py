@@ -40,7 +40,16 @@ def repeat_processes(group: Path) -> list[int]:
             continue
         if b"--resume" in cmdline and any(a.startswith(str(group).encode() + b"/repeat-") for a in cmdline):
             found.append(int(entry.name))
-    return found
+    # A child caught between fork and exec still shows its parent's command line: count loops, not those.
+    return [pid for pid in found if parent_of(pid) not in found]
+
+
+def parent_of(pid: int) -> int | None:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return int(stat.rsplit(")", 1)[1].split()[1])
 
 
 def test_repeats_survive_kill_9_and_sigterm_then_resume(tmp_path):
