@@ -126,122 +126,143 @@ class Family:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Family:
         path = Path(path).resolve()
-        if not path.is_dir():
-            raise FamilyError(f"{path}: not a directory")
-        missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
-        if missing:
-            raise FamilyError(f"{path}: missing {', '.join(missing)} (see docs/family-contract.md)")
-        try:
-            registry = json.loads((path / "family.json").read_text(encoding="utf-8"))
-        except ValueError as err:
-            raise FamilyError(f"{path / 'family.json'}: not valid JSON ({err})") from None
-        space = _check_registry(registry, path / "family.json")
-        train_source = (path / "train.py").read_text(encoding="utf-8")
-        _check_train_py(train_source, registry, space, path / "train.py")
+        registry, space, problems = _read(path)
+        if problems:
+            raise FamilyError(problems[0])
         return cls(
             path=path,
             name=registry["name"],
             program=(path / "program.md").read_text(encoding="utf-8"),
             program_blind=(path / "program_blind.md").read_text(encoding="utf-8"),
-            train_source=train_source,
+            train_source=(path / "train.py").read_text(encoding="utf-8"),
             registry=registry,
             space=space,
         )
 
 
-def _check_registry(registry: Any, where: Path) -> SearchSpace:
-    if not isinstance(registry, dict):
-        raise FamilyError(f"{where}: must hold a JSON object")
+def family_problems(path: str | os.PathLike[str]) -> list[str]:
+    """Every problem of a family directory that can be seen without running it, one line each:
+    missing files, family.json field by field, and train.py's editable region against it
+    (``autoresearch check --family``; :meth:`Family.load` raises the first)."""
+    return _read(Path(path).resolve())[2]
 
-    def bad(field: str, why: str) -> FamilyError:
-        return FamilyError(f"{where}: '{field}' {why}")
+
+def _read(path: Path) -> tuple[Any, SearchSpace | None, list[str]]:
+    if not path.is_dir():
+        return None, None, [f"{path}: not a directory"]
+    missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
+    problems = [f"{path}: missing {', '.join(missing)} (see docs/family-contract.md)"] if missing else []
+    if "family.json" in missing:
+        return None, None, problems
+    try:
+        registry = json.loads((path / "family.json").read_text(encoding="utf-8"))
+    except ValueError as err:
+        return None, None, [*problems, f"{path / 'family.json'}: not valid JSON ({err})"]
+    space, registry_problems = _registry_problems(registry, path / "family.json")
+    problems += registry_problems
+    if space is not None and "train.py" not in missing:
+        source = (path / "train.py").read_text(encoding="utf-8")
+        problems += _train_py_problems(source, registry, space, path / "train.py")
+    return registry, space, problems
+
+
+def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, list[str]]:
+    """The search space (None when it does not parse) and every problem of a family.json."""
+    if not isinstance(registry, dict):
+        return None, [f"{where}: must hold a JSON object"]
+    problems: list[str] = []
+
+    def bad(field: str, why: str) -> None:
+        problems.append(f"{where}: '{field}' {why}")
 
     for field in ("name", "metric"):
         if not isinstance(registry.get(field), str) or not registry[field]:
-            raise bad(field, "must be a non-empty string")
-    if not PLAIN_NAME.fullmatch(registry["name"]) or ".." in registry["name"]:
-        raise bad(
-            "name",
-            f"must be a plain name (letters, digits, '_', '-', '.'; no '/' or '..'), got {registry['name']!r}",
-        )
+            bad(field, "must be a non-empty string")
+    name = registry.get("name")
+    if isinstance(name, str) and name and (not PLAIN_NAME.fullmatch(name) or ".." in name):
+        bad("name", f"must be a plain name (letters, digits, '_', '-', '.'; no '/' or '..'), got {name!r}")
     if registry.get("direction") not in ("maximize", "minimize"):
-        raise bad("direction", f"must be 'maximize' or 'minimize', got {registry.get('direction')!r}")
+        bad("direction", f"must be 'maximize' or 'minimize', got {registry.get('direction')!r}")
     if registry.get("target") is not None and not _number(registry["target"]):
-        raise bad("target", "must be a finite number or null")
+        bad("target", "must be a finite number or null")
     field = registry.get("feasibility_field")
     if field is not None and (not isinstance(field, str) or not field):
-        raise bad("feasibility_field", "must be a field name or null")
+        bad("feasibility_field", "must be a field name or null")
     if not isinstance(registry.get("test_split", False), bool):
-        raise bad("test_split", "must be true or false")
+        bad("test_split", "must be true or false")
     constraints = registry.get("constraints_field")
     if constraints is not None and (not isinstance(constraints, str) or not constraints):
-        raise bad("constraints_field", "must be a field name or null")
+        bad("constraints_field", "must be a field name or null")
     if constraints is not None and field is None:
-        raise bad("constraints_field", "needs a feasibility_field: the constraints grade that gate")
+        bad("constraints_field", "needs a feasibility_field: the constraints grade that gate")
     seed = registry.get("default_seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool):
-        raise bad("default_seed", "must be an integer")
-    axes = registry.get("axes")
-    if not isinstance(axes, list) or not axes or not all(isinstance(a, str) and a for a in axes):
-        raise bad("axes", "must be a non-empty list of names")
-    if len(set(axes)) != len(axes):
-        raise bad("axes", "must not repeat a name")
-    try:
-        space = SearchSpace.from_json(registry.get("search_space"), tuple(axes))
-    except SpaceError as err:
-        raise FamilyError(f"{where}: {err}") from None
-    baseline = registry.get("baseline")
-    if not isinstance(baseline, dict) or not isinstance(baseline.get("config"), dict):
-        raise bad("baseline", "must be an object with a 'config'")
-    try:
-        space.validate_full(baseline["config"])
-    except ValidationError as err:
-        raise bad("baseline.config", f"is not a point of the search space: {err}") from None
-    if baseline.get("metric") is not None and not _number(baseline["metric"]):
-        raise bad("baseline.metric", "must be a finite number or null")
+        bad("default_seed", "must be an integer")
     noise = registry.get("seed_noise")
     if noise is not None and not (
         isinstance(noise, dict) and _number(noise.get("std")) and noise["std"] >= 0
     ):
-        raise bad("seed_noise", "must be null or an object with a finite 'std' >= 0")
+        bad("seed_noise", "must be null or an object with a finite 'std' >= 0")
     for part, name in ((noise, "seed_noise"), ((noise or {}).get(TEST), "seed_noise.test")):
         for key in ("mean", "std"):  # read as numbers by the audit and the prompts
             if isinstance(part, dict) and key in part and not _number(part[key]):
-                raise bad(f"{name}.{key}", "must be a finite number")
+                bad(f"{name}.{key}", "must be a finite number")
     best = registry.get("best")
     if best is not None and not (isinstance(best, dict) and isinstance(best.get("config"), dict)):
-        raise bad("best", "must be null or an object with a 'config'")
+        bad("best", "must be null or an object with a 'config'")
     for key in ("metric", "std"):
         if isinstance(best, dict) and best.get(key) is not None and not _number(best[key]):
-            raise bad(f"best.{key}", "must be a finite number or null")
-    return space
+            bad(f"best.{key}", "must be a finite number or null")
+    axes = registry.get("axes")
+    if not isinstance(axes, list) or not axes or not all(isinstance(a, str) and a for a in axes):
+        bad("axes", "must be a non-empty list of names")
+        return None, problems
+    if len(set(axes)) != len(axes):
+        bad("axes", "must not repeat a name")
+    try:
+        space = SearchSpace.from_json(registry.get("search_space"), tuple(axes))
+    except SpaceError as err:
+        return None, [*problems, f"{where}: {err}"]
+    baseline = registry.get("baseline")
+    if not isinstance(baseline, dict) or not isinstance(baseline.get("config"), dict):
+        bad("baseline", "must be an object with a 'config'")
+        return None, problems
+    try:
+        space.validate_full(baseline["config"])
+    except ValidationError as err:
+        bad("baseline.config", f"is not a point of the search space: {err}")
+        return None, problems
+    if baseline.get("metric") is not None and not _number(baseline["metric"]):
+        bad("baseline.metric", "must be a finite number or null")
+    return space, problems
 
 
-def _check_train_py(source: str, registry: dict[str, Any], space: SearchSpace, where: Path) -> None:
+def _train_py_problems(source: str, registry: dict[str, Any], space: SearchSpace, where: Path) -> list[str]:
     try:
         defaults = read_region(source).values()
     except EditableError as err:
-        raise FamilyError(f"{where}: {err}") from None
+        return [f"{where}: {err}"]
     if set(defaults) != set(space.names):
         extra, absent = sorted(set(defaults) - set(space.names)), sorted(set(space.names) - set(defaults))
-        raise FamilyError(
+        return [
             f"{where}: the editable region must assign exactly the search-space parameters"
             + (f"; not in search_space: {extra}" if extra else "")
             + (f"; not in the editable region: {absent}" if absent else "")
-        )
+        ]
     try:
         canonical = space.validate_full(defaults)
     except ValidationError as err:
-        raise FamilyError(f"{where}: an editable default is outside the search space: {err}") from None
+        return [f"{where}: an editable default is outside the search space: {err}"]
     baseline = space.validate_full(registry["baseline"]["config"])
     differing = [
         n for n in space.names if canonical[n] != baseline[n] or type(canonical[n]) is not type(baseline[n])
     ]
     if differing:
-        raise FamilyError(
+        return [
             f"{where}: baseline.config in family.json differs from the editable defaults for "
             + ", ".join(f"{n} ({baseline[n]!r} vs {canonical[n]!r})" for n in differing)
-        )
+        ]
+    return []
 
 
 def search_view(registry: dict[str, Any]) -> dict[str, Any]:
@@ -261,19 +282,24 @@ def _walk_up(start: Path):
     yield from start.parents
 
 
-def resolve_family(name_or_path: str | os.PathLike[str]) -> Family:
+def find_family_dir(name_or_path: str | os.PathLike[str]) -> Path:
     """A family given as a directory path, else ``./families/<name>``, else ``families/<name>``
     in the nearest parent of the working directory that has it."""
     given = Path(name_or_path)
     if given.is_dir():
-        return Family.load(given)
+        return given
     cwd = Path.cwd()
     if len(given.parts) == 1:
         for root in _walk_up(cwd):
             candidate = root / "families" / given.name
             if candidate.is_dir():
-                return Family.load(candidate)
+                return candidate
     raise FamilyError(
         f"no family {os.fspath(name_or_path)!r}: it is not a directory, and no families/{given.name} "
         f"exists in {cwd} or any of its parents"
     )
+
+
+def resolve_family(name_or_path: str | os.PathLike[str]) -> Family:
+    """The family :func:`find_family_dir` finds, loaded."""
+    return Family.load(find_family_dir(name_or_path))

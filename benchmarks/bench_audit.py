@@ -1,6 +1,6 @@
 """Audit wall time with 2 workers vs 1, and the Ray executor's overhead per task.
 
-Runs on tests/toy_family with a sleep-dominated train.py (TOY_SLEEP_S), so the numbers measure
+Runs on autoresearch/templates/minimal with a sleep-dominated train.py (TOY_SLEEP_S), so the numbers measure
 the executor, not the machine's arithmetic. Usage:
 
     .venv/bin/python benchmarks/bench_audit.py [--sleep 0.3] [--ray-tasks 40]
@@ -29,7 +29,7 @@ from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.random_search import RandomProposer
 
-TOY = Path(__file__).resolve().parents[1] / "tests" / "toy_family"
+TOY = Path(__file__).resolve().parents[1] / "autoresearch" / "templates" / "minimal"
 ITERATIONS, NOISE_SEEDS, TOP, SEEDS = 8, 6, 2, 6
 
 

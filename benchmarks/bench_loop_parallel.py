@@ -29,7 +29,7 @@ from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.random_search import RandomProposer
 
-TOY = Path(__file__).resolve().parents[1] / "tests" / "toy_family"
+TOY = Path(__file__).resolve().parents[1] / "autoresearch" / "templates" / "minimal"
 
 
 def campaign_wall(family: str, workers: int, max_runs: int, seed: int, where: Path) -> tuple[float, int]:

@@ -12,8 +12,9 @@ from autoresearch.journal import read_jsonl
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator, Outcome
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, RunOutcome, Usage
+from autoresearch.templates import MINIMAL_TEMPLATE
 
-TOY_FAMILY = Path(__file__).parent / "toy_family"
+TOY_FAMILY = MINIMAL_TEMPLATE  # the toy family is the minimal template `autoresearch init` writes
 
 # A feasible configuration of the toy family whose loss is far below its target (0.05).
 TOY_OPTIMUM = {

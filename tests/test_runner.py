@@ -196,11 +196,11 @@ def test_orphan_of_a_dead_loop_is_killed_only_if_it_is_ours(tmp_path):
 
 
 def test_prepare_check(tmp_path):
-    assert run_prepare_check(Family.load(copy_toy(tmp_path))) is None
+    assert run_prepare_check(copy_toy(tmp_path)) is None
     broken = mini_family(
         tmp_path / "fam", GOOD, prepare="import sys; sys.exit('dataset cache missing: run --warm-cache')\n"
     )
-    message = run_prepare_check(broken)
+    message = run_prepare_check(broken.path)
     assert "exit 1" in message and "dataset cache missing" in message
 
 

@@ -169,7 +169,7 @@ def family_hook(
         done = subprocess.run(
             cmd,
             cwd=family.path,
-            env=family_env(family),
+            env=family_env(family.path),
             capture_output=True,
             text=True,
             timeout=HOOK_TIMEOUT_S,

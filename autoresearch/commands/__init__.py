@@ -4,6 +4,7 @@ every command without importing any: the modules pull in numpy, scipy, matplotli
 
 # command -> module in this package, in the order ``autoresearch --help`` lists them
 MODULES = {
+    "init": "init",
     "loop": "loop",
     "noise": "noise",
     "verify": "verify",
@@ -17,6 +18,7 @@ MODULES = {
 }
 
 SUMMARIES = {
+    "init": "write a new family directory from a template (minimal, docking, rendezvous)",
     "loop": "run the agent loop on a family (one campaign)",
     "noise": "measure a family's seed noise: its baseline over K fresh seeds",
     "verify": "reseed a campaign's top configurations at fresh seeds and promote the family best",
@@ -25,6 +27,6 @@ SUMMARIES = {
     "audit": "noise, verify, prune and the random arm for one campaign, then report.md",
     "report": "write report.md and its figures into a campaign directory",
     "compare": "compare arms over their repeated campaigns (median, IQM, P(better), target)",
-    "check": "validate a campaign's files (duplicates, gaps, torn lines) and say how to repair them",
+    "check": "validate a family against the contract, or a campaign's files (and say how to repair them)",
     "export": "write a campaign to an Optuna journal file (optuna-dashboard, Optuna's plots)",
 }

@@ -10,25 +10,32 @@ from autoresearch.audit.inputs import AuditError, open_campaign, provenance_repo
 from autoresearch.campaign import CampaignError
 from autoresearch.campaign.check import check_campaign
 from autoresearch.commands import SUMMARIES
-from autoresearch.family import FamilyError
+from autoresearch.family import FamilyError, family_problems, find_family_dir
 from autoresearch.journal import JournalError
 from autoresearch.loop import repeats
 from autoresearch.loop.campaign_lock import holder, not_a_directory
+from autoresearch.loop.runner import run_prepare_check
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "check",
         help=SUMMARIES["check"],
-        description="Check a campaign directory (or each campaign of a --repeats group): campaign.json and "
+        description="With --family: check a family directory against the contract (docs/family-contract.md): "
+        "its files, family.json field by field, train.py's editable region against the search space and "
+        "the baseline, and prepare.py --check. With --campaign: check a campaign directory (or each "
+        "campaign of a --repeats group): campaign.json and "
         "family.json readable; proposals.jsonl with iterations 1, 2, ... once each, whole lines, every "
         "recorded run with its run directory; runs.jsonl with whole lines, each run once and started by "
         "this campaign, every run recorded as ran logged there; audit.json, if any, a JSON object whose "
-        "step parts are objects with a known status. Prints each problem with its repair. Exit 0 when "
-        "clean, 1 with problems.",
-        epilog="Example: autoresearch check --campaign runs/docking-tpe-20250101-120000",
+        "step parts are objects with a known status. Prints each problem in one line (with its repair, for "
+        "a campaign). Exit 0 when clean, 1 with problems.",
+        epilog="Examples: autoresearch check --family my-family; "
+        "autoresearch check --campaign runs/docking-tpe-20250101-120000",
     )
-    p.add_argument("--campaign", required=True, type=Path, help="campaign (or repeats group) directory")
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--campaign", type=Path, help="campaign (or repeats group) directory")
+    which.add_argument("--family", help="family directory (or the name of one under families/)")
     p.add_argument(
         "--strict-provenance",
         action="store_true",
@@ -64,7 +71,25 @@ def _check_one(root: Path, strict: bool) -> bool:
     return not result.problems and not (strict and differences)
 
 
+def _check_family(given: str) -> int:
+    try:
+        path = find_family_dir(given)
+    except FamilyError as err:
+        print(f"autoresearch check: error: {err}", file=sys.stderr)
+        return 2
+    problems = family_problems(path)
+    if (path / "prepare.py").is_file():
+        failed = run_prepare_check(path.resolve())
+        problems += [failed] if failed else []
+    print(f"{path}: clean" if not problems else f"{path}: {len(problems)} problem(s)")
+    for problem in problems:  # prepare.py's own output may name its problems a line each
+        print("  " + problem.replace("\n", "\n    "))
+    return 1 if problems else 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.family is not None:
+        return _check_family(args.family)
     root = args.campaign
     problem = not_a_directory(root)
     if problem:

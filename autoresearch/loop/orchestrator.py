@@ -192,7 +192,7 @@ class Orchestrator:
             if state.last.status is Status.STOP_ACCEPTED or trigger is not None:
                 return self._outcome("already_finished", state.last.trigger, state.last.reason)
         reruns = self._recover()
-        problem = run_prepare_check(self.family)
+        problem = run_prepare_check(self.family.path)
         if problem is not None:
             for intent in reruns:
                 self.campaign.mark_interrupted(

@@ -70,11 +70,11 @@ class RunResult:
         return cls(**data)
 
 
-def family_env(family: Family) -> dict[str, str]:
+def family_env(family_dir: Path) -> dict[str, str]:
     """The environment of every family subprocess (train.py, prepare.py)."""
     env = dict(os.environ)
-    env["FAMILY_DIR"] = str(family.path)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(family.path), env.get("PYTHONPATH")) if p)
+    env["FAMILY_DIR"] = str(family_dir)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(family_dir), env.get("PYTHONPATH")) if p)
     env["PYTHONDONTWRITEBYTECODE"] = "1"  # imports must not leave __pycache__ in the family dir
     env["PYTHONUNBUFFERED"] = "1"
     return env
@@ -166,7 +166,7 @@ def run_experiment(
             returncode, timed_out = run_in_group(
                 cmd,
                 cwd=run_dir,
-                env={**family_env(family), tracking.RUN_ENV: str(tracked)},
+                env={**family_env(family.path), tracking.RUN_ENV: str(tracked)},
                 stdout=out,
                 stderr=err,
                 timeout=timeout,
@@ -249,13 +249,13 @@ def load_result(run_dir: Path) -> RunResult | None:
     return RunResult.from_json(read_json(path)) if path.exists() else None
 
 
-def run_prepare_check(family: Family, timeout: float = 300.0) -> str | None:
+def run_prepare_check(family_dir: Path, timeout: float = 300.0) -> str | None:
     """None when ``prepare.py --check`` passes in the family directory, else its message."""
     with tempfile.TemporaryFile() as out:
         returncode, timed_out = run_in_group(
             [sys.executable, "prepare.py", "--check"],
-            cwd=family.path,
-            env=family_env(family),
+            cwd=family_dir,
+            env=family_env(family_dir),
             stdout=out,
             stderr=subprocess.STDOUT,
             timeout=timeout,

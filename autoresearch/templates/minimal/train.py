@@ -1,8 +1,8 @@
 """Toy family: a noisy quadratic bowl standing in for a training run (pure Python, milliseconds).
 
-It follows docs/family-contract.md exactly and doubles as the template for a new family: keep
-the two banners, the command line, the single FINAL_METRIC line and the locked append to
---runs-log; replace the body of train() with real training.
+It follows docs/family-contract.md exactly and is the `minimal` template of `autoresearch init`:
+keep the two banners, the command line, the single FINAL_METRIC line and the locked append to
+--runs-log; replace the body of train() with real training. This repository's tests run on it.
 """
 
 # ===== Editable Configuration (the agent may change these values only) =====
@@ -44,7 +44,7 @@ MAX_EFFECTIVE_STEP = 0.5  # lr / (1 - momentum) above this "diverges": the run i
 def train(config: dict, seed: int) -> dict:
     if config["EPOCHS"] <= 0:
         raise ValueError(f"EPOCHS must be positive, got {config['EPOCHS']}")
-    time.sleep(float(os.environ.get("TOY_SLEEP_S", "0")))  # test knob: a slow "training run"
+    time.sleep(float(os.environ.get("TOY_SLEEP_S", "0")))  # a slow "training run", for tests and benchmarks
     loss = (
         0.5 * (math.log10(config["LEARNING_RATE"]) - math.log10(3e-3)) ** 2
         + (config["MOMENTUM"] - 0.8) ** 2
