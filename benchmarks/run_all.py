@@ -71,6 +71,7 @@ EVIDENCE_CAMPAIGNS = ("results/evidence/rendezvous-gp", "results/evidence/dockin
 PARALLEL_LOG = "results/logs/bench_loop_parallel.txt"  # bench_loop_parallel.py's committed output
 SB3_LOG = "results/logs/bench_sb3.txt"  # bench_sb3.py's committed output
 EVALUATION_LOG = "results/logs/bench_evaluation.txt"  # bench_evaluation.py's committed output
+INSTALL_LOG = "results/logs/bench_install.txt"  # bench_install.py's committed output
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
 
@@ -362,6 +363,17 @@ def evaluation_rows() -> list[Row]:
     ]
 
 
+def install_rows() -> list[Row]:
+    """Install sizes and start-up times, from bench_install.py's committed output (building its
+    venvs takes minutes and the network, so nothing is run here)."""
+    log = ROOT / INSTALL_LOG
+    if not log.is_file():
+        return [("install size and start-up", "not run", "", f"benchmarks/bench_install.py > {INSTALL_LOG}")]
+    text = log.read_text(encoding="utf-8")
+    cells = table_cells(text, "install size") + table_cells(text, "start-up")
+    return [(what, value, comparison, f"from {INSTALL_LOG}") for what, value, comparison in cells]
+
+
 def evidence_rows() -> list[Row]:
     """Experiments and wall-clock to the family's target (single seed, feasible runs) in each
     committed evidence campaign, and its best candidate's reseeded verification (nothing is run)."""
@@ -509,7 +521,7 @@ def main() -> int:
         rows += compare_rows()
         rows += early_stop_rows()
         rows += evidence_rows()
-        rows += sb3_rows() + evaluation_rows()
+        rows += sb3_rows() + evaluation_rows() + install_rows()
         rows.append(main_job_row())
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"

@@ -155,6 +155,24 @@ def test_sb3_and_evaluation_rows_read_the_committed_tables(tmp_path, monkeypatch
     assert row[0].endswith("rendezvous") and row[1:3] == ("0.40 s vs 0.05 s", "8.0x") and "0.3 s" in row[3]
 
 
+def test_install_rows_read_the_committed_table(tmp_path, monkeypatch):
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    assert run_all.install_rows()[0][1] == "not run"
+    (tmp_path / "results" / "logs").mkdir(parents=True)
+    (tmp_path / "results" / "logs" / "bench_install.txt").write_text(
+        "Python 3.11\n\n| measure | value | comparison |\n|---|---:|---|\n"
+        "| install size, base | 400 MB | 1.0x base |\n| install size, [all] | 2,000 MB | 5.0x base |\n"
+        "| start-up, import cwh_envs | 0.300 s | +0.100 s over gymnasium (target <= 0.15 s) |\n"
+    )
+    rows = run_all.install_rows()
+    assert [r[:3] for r in rows] == [
+        ("install size, base", "400 MB", "1.0x base"),
+        ("install size, [all]", "2,000 MB", "5.0x base"),
+        ("start-up, import cwh_envs", "0.300 s", "+0.100 s over gymnasium (target <= 0.15 s)"),
+    ]
+    assert rows[0][3] == "from results/logs/bench_install.txt"
+
+
 def test_evidence_rows_read_the_committed_campaigns():
     rows = run_all.evidence_rows()
     assert [row[0].split(",")[1].split(":")[0].strip() for row in rows] == ["rendezvous", "docking"]
