@@ -1,11 +1,12 @@
-"""One interface for running independent tasks: serially, on a local pool, or on Ray.
+"""One interface for running training runs and the tasks that start them: serially, on a local
+pool, or on Ray (autoresearch.ray_executor, imported only when chosen).
 
 Every audit task is one training run, i.e. one subprocess, so the local pool is a thread pool
 driving subprocesses: no pickling, no fork of the parent, and results come back in the parent,
-where the caller logs them (through the journal's file lock, so appends never interleave).
-Ray runs the same function as remote tasks, each reserving the CPUs (and GPU) one run needs;
-ray is imported only when chosen. Results are returned in task order, so for the same seeds
-they are identical to a serial run's.
+where the caller logs them (through the journal's file lock, so appends never interleave). A task
+starts its run through :meth:`Executor.run_experiment`: here, a subprocess of this machine; on Ray,
+a remote task whose files come back to this process. Results are returned in task order, so for
+the same seeds they are identical to a serial run's.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-from autoresearch.extras import require
+from autoresearch.loop.runner import RunResult, run_experiment
 
 # A Ray task's cancellation is checked this often; a cancelled task has this long to kill its run
 # (the runner's SIGTERM grace, and then some) before its worker is killed.
@@ -49,6 +50,11 @@ class Executor(ABC):
         on_result: OnResult | None = None,
         cancel: threading.Event | None = None,
     ) -> list[R]: ...
+
+    def run_experiment(self, *args: Any, **kwargs: Any) -> RunResult:
+        """One training run (autoresearch.loop.runner.run_experiment's arguments and result), on
+        this machine; the Ray executor runs it as a task."""
+        return run_experiment(*args, **kwargs)
 
     def close(self) -> None:  # noqa: B027  (a no-op unless the executor started something)
         """Release what the executor started."""
@@ -94,86 +100,6 @@ class LocalExecutor(Executor):
         return results
 
 
-class RayExecutor(Executor):
-    """The same tasks as Ray remote tasks.
-
-    address: an existing cluster ("auto" or "ray://host:port"); None starts a local instance
-    with ``workers * cpus_per_task`` CPUs. On a cluster, the family directory and the campaign
-    directory must be on a filesystem every node sees, and autoresearch installed on each node.
-    gpus_per_task None: one GPU per task when the cluster has GPUs, none otherwise.
-    """
-
-    name = "ray"
-
-    def __init__(
-        self,
-        address: str | None = None,
-        workers: int = 1,
-        cpus_per_task: float = 1,
-        gpus_per_task: float | None = None,
-    ):
-        ray = require("ray", "ray", "--executor ray")
-        if workers < 1:
-            raise ValueError(f"--workers must be >= 1 (got {workers})")
-        self._ray = ray
-        self.workers = workers
-        self._started = False
-        if not ray.is_initialized():
-            with keeping_signal_handlers():
-                if address:
-                    ray.init(address=address, log_to_driver=False)
-                else:
-                    ray.init(num_cpus=workers * cpus_per_task, include_dashboard=False, log_to_driver=False)
-            self._started = True
-        if gpus_per_task is None:
-            gpus_per_task = 1 if ray.cluster_resources().get("GPU", 0) > 0 else 0
-        self.options = {"num_cpus": cpus_per_task, "num_gpus": gpus_per_task}
-
-    def map(
-        self,
-        fn: Callable[[T], R],
-        tasks: Sequence[T],
-        on_result: OnResult | None = None,
-        cancel: threading.Event | None = None,
-    ) -> list[R]:
-        ray = self._ray
-        remote = ray.remote(**self.options)(_apply)
-        fn_ref = ray.put(fn)  # shipped once, not once per task
-        index = {remote.remote(fn_ref, task): i for i, task in enumerate(tasks)}
-        results: list[Any] = [None] * len(tasks)
-        pending = list(index)
-        try:
-            while pending:
-                if cancel is not None and cancel.is_set():
-                    raise KeyboardInterrupt
-                done, pending = ray.wait(pending, num_returns=1, timeout=CANCEL_POLL_S)
-                if done:
-                    i = index[done[0]]
-                    results[i] = ray.get(done[0])
-                    if on_result:
-                        on_result(i, results[i])
-        except BaseException:  # SIGTERM, Ctrl-C, cancel or an error: the runs in flight stop too
-            self._cancel(pending)
-            raise
-        return results
-
-    def _cancel(self, refs: list[Any]) -> None:
-        """Cancel ``refs``: a KeyboardInterrupt in each task (the runner then kills its training
-        process group and whatever else the run started), then the worker killed if it lingers."""
-        ray = self._ray
-        for ref in refs:
-            ray.cancel(ref)
-        lingering = ray.wait(refs, num_returns=len(refs), timeout=CANCEL_GRACE_S)[1] if refs else []
-        for ref in lingering:
-            ray.cancel(ref, force=True)
-
-    def close(self) -> None:
-        if self._started:
-            with keeping_signal_handlers():
-                self._ray.shutdown()
-            self._started = False
-
-
 @contextmanager
 def keeping_signal_handlers() -> Iterator[None]:
     """Restore the SIGINT/SIGTERM handlers after the block: ray.init installs its own SIGTERM handler
@@ -203,9 +129,22 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--gpus-per-task", type=float, default=None, help="Ray: GPUs one run reserves (default 1 if any)"
     )
+    group.add_argument(
+        "--ray-files",
+        choices=("ship", "shared"),
+        default="ship",
+        help="Ray: ship the family to the workers and the run's files back (default), or read and write "
+        "them in place on a filesystem every node sees",
+    )
 
 
 def make_executor(args: argparse.Namespace) -> Executor:
     if args.executor == "ray":
-        return RayExecutor(args.ray_address, args.workers, args.cpus_per_task, args.gpus_per_task)
+        return ray_executor(args, args.workers)
     return LocalExecutor(args.workers)
+
+
+def ray_executor(args: argparse.Namespace, workers: int) -> Executor:
+    from autoresearch.ray_executor import RayExecutor  # imports ray
+
+    return RayExecutor(args.ray_address, workers, args.cpus_per_task, args.gpus_per_task, args.ray_files)

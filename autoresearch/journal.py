@@ -114,8 +114,14 @@ def encode_line(record: Any) -> bytes:
 
 def append_jsonl(path: str | os.PathLike[str], record: Any) -> None:
     """Append ``record`` as one line, durably, under the file's lock."""
+    append_line(path, encode_line(record))
+
+
+def append_line(path: str | os.PathLike[str], data: bytes) -> None:
+    """Append one whole line (as another writer wrote it), durably, under the file's lock."""
+    if not data.endswith(b"\n") or b"\n" in data[:-1]:
+        raise ValueError(f"{path}: an appended record must be exactly one line")
     path = Path(path)
-    data = encode_line(record)
     with _locked(path), _naming(path):
         fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:

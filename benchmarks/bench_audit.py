@@ -73,7 +73,7 @@ def ray_overhead(where: Path, n_tasks: int) -> tuple[float, float, float] | None
         import ray  # noqa: F401  (the optional extra)
     except ImportError:
         return None
-    from autoresearch.executors import RayExecutor
+    from autoresearch.ray_executor import RayExecutor
 
     family = Family.load(where / "family")
     trials = [Trial(f"t{i}", family.baseline_config, i) for i in range(n_tasks)]

@@ -79,7 +79,7 @@ def ray_instance():
     handlers kept: ray.init would leave its own SIGTERM handler behind."""
     ray = needs_module("ray", "ray")
     with keeping_signal_handlers():
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield ray
     with keeping_signal_handlers():
         ray.shutdown()

@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from autoresearch.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator, Outcome
@@ -82,6 +83,7 @@ def run_loop(
     timeout: float = 60.0,
     workers: int = 1,
     early_stop: str = "none",
+    executor: Executor | None = None,
     **budgets: Any,
 ) -> tuple[Outcome, list[dict[str, Any]]]:
     budgets.setdefault("max_iters", 30)
@@ -93,7 +95,7 @@ def run_loop(
         workers=workers,
         early_stop=early_stop,
     )
-    outcome = Orchestrator(Family.load(family_dir), proposer, campaign, settings).run()
+    outcome = Orchestrator(Family.load(family_dir), proposer, campaign, settings, executor=executor).run()
     return outcome, read_jsonl(campaign / "proposals.jsonl")
 
 

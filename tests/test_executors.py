@@ -115,7 +115,7 @@ def test_a_logged_key_counts_only_for_the_configuration_it_ran(toy, tmp_path):
 
 @pytest.mark.slow
 def test_ray_results_are_identical_to_serial(ray_instance, toy, serial_rows, tmp_path):
-    from autoresearch.executors import RayExecutor
+    from autoresearch.ray_executor import RayExecutor
 
     with RayExecutor(workers=2) as executor:
         assert executor.options == {"num_cpus": 1, "num_gpus": 0}  # no GPU on a CPU-only instance
@@ -139,7 +139,7 @@ def test_sigterm_under_ray_exits_130_as_documented(toy, tmp_path):
         text=True,
     )
     deadline = time.monotonic() + 120
-    while not list(out.glob("*/process.json")):
+    while not list(out.glob("*/remote.json")):
         assert time.monotonic() < deadline and proc.poll() is None, "no run started"
         time.sleep(0.1)
     proc.send_signal(signal.SIGTERM)

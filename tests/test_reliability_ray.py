@@ -10,6 +10,7 @@ import time
 
 import pytest
 from loop_helpers import copy_toy, processes_naming
+from test_ray_executor import SCRATCH
 
 
 @pytest.mark.slow
@@ -21,10 +22,10 @@ def test_sigterm_under_ray_cancels_the_runs_in_flight(tmp_path, command):
     cmd += ["--workers", "2"]
     if command == "loop":
         cmd += ["--proposer", "random", "--max-iters", "3", "--campaign", str(out), "--plain"]
-        started = "runs/*/process.json"
+        started = "runs/*/remote.json"
     else:
         cmd += ["--seeds", "2", "--out", str(out)]
-        started = "*/process.json"
+        started = "*/remote.json"  # written by the driver once the task reports its run started
     proc = subprocess.Popen(
         cmd,
         env={**os.environ, "TOY_SLEEP_S": "300"},
@@ -43,10 +44,11 @@ def test_sigterm_under_ray_cancels_the_runs_in_flight(tmp_path, command):
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 130, err[-2000:]
         assert time.monotonic() - sent < 30  # not the 300 s the runs would take
-        assert processes_naming(str(out)) == []  # both train.py and their watchdogs are gone
+        # both train.py (in scratch directories of the worker) and their watchdogs are gone
+        assert processes_naming(str(out)) == [] and processes_naming(SCRATCH) == []
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        for pid, _ in processes_naming(str(out)):  # what a failure left behind
+        for pid, _ in processes_naming(str(out)) + processes_naming(SCRATCH):  # what a failure left behind
             os.kill(pid, signal.SIGKILL)

@@ -183,6 +183,9 @@ def test_repeats_on_ray_match_the_local_pool(ray_instance, tmp_path):
     assert main([*args, "--campaign", str(tmp_path / "pool"), "--workers", "2"]) == 0
     assert main([*args, "--campaign", str(tmp_path / "ray"), "--workers", "2", "--executor", "ray"]) == 0
     pool, ray = records_of(tmp_path / "pool"), records_of(tmp_path / "ray")
+    ran_on_ray = [d / "remote.json" for d in (tmp_path / "ray").glob("repeat-*/runs/*")]
+    assert len(ran_on_ray) == 6 and all(p.is_file() for p in ran_on_ray)  # each repeat's runs: Ray tasks
+    assert "RAY_ADDRESS" not in os.environ  # given to the repeats' loops only while the group ran
     assert {k: [(r["config"], r["metric"]) for r in v] for k, v in ray.items()} == {
         k: [(r["config"], r["metric"]) for r in v] for k, v in pool.items()
     }

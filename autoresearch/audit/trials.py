@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import functools
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,7 +74,13 @@ def trial_row(family: Family, trial: Trial, result: RunResult, eval_split: str =
 
 
 def run_trial(
-    family: Family, root: Path, runs_log: Path, timeout: float, eval_split: str, trial: Trial
+    family: Family,
+    root: Path,
+    runs_log: Path,
+    timeout: float,
+    eval_split: str,
+    trial: Trial,
+    experiment: Callable[..., RunResult] = run_experiment,
 ) -> dict[str, Any]:
     """Run one trial in root/<key>; a finished earlier attempt of the same configuration and split
     whose log line was lost is reused, anything else left in the directory is replaced."""
@@ -93,7 +99,7 @@ def run_trial(
         if logged is not None and logged.ok:  # it finished before it was stopped: its line is the result
             return trial_row(family, trial, logged, eval_split)
         shutil.rmtree(run_dir)
-    result = run_experiment(
+    result = experiment(
         family,
         trial.config,
         run_id=trial.key,
@@ -143,7 +149,9 @@ def run_trials(
     }
     todo = [t for t in trials if t.key not in done]
     runs_log = (runs_log or root / "runs.jsonl").resolve()
-    fn = functools.partial(run_trial, family, root.resolve(), runs_log, timeout, eval_split)
+    fn = functools.partial(
+        run_trial, family, root.resolve(), runs_log, timeout, eval_split, experiment=executor.run_experiment
+    )
     with TrialProgress(label or log_path.stem, len(trials), len(trials) - len(todo)) as progress:
 
         def record(_: int, row: dict[str, Any]) -> None:

@@ -6,6 +6,8 @@ import argparse
 import os
 import signal
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -14,7 +16,7 @@ from autoresearch import provenance
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, portable_path, session
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import error_exit
-from autoresearch.executors import Executor, RayExecutor, add_executor_arguments, make_executor
+from autoresearch.executors import Executor, add_executor_arguments, make_executor, ray_executor
 from autoresearch.extras import require
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json
@@ -261,10 +263,6 @@ def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
         raise UsageError(f"--random-arm {settings['random_arm']}: not a directory")
     if settings["workers"] < 1:
         raise UsageError(f"--workers must be >= 1 (got {settings['workers']})")
-    if settings["executor"] == "ray" and settings["early_stop"] != "none":
-        raise UsageError(
-            "--early-stop needs --executor local: a Ray task's progress is not read while it runs"
-        )
     loop = LoopSettings(
         proposer_name=meta.proposer,
         budgets=Budgets(
@@ -289,7 +287,25 @@ def _executor(args: argparse.Namespace, settings: dict[str, Any]) -> Executor | 
     """The Ray executor of ``--executor ray`` (None: local threads, no executor needed)."""
     if settings["executor"] != "ray":
         return None
-    return RayExecutor(args.ray_address, settings["workers"], args.cpus_per_task, args.gpus_per_task)
+    return ray_executor(args, settings["workers"])
+
+
+@contextmanager
+def _cluster_for_repeats(executor: Executor) -> Iterator[None]:
+    """Under Ray, each repeat's loop (a process of its own) runs its tasks on the group's cluster:
+    its address goes to them in RAY_ADDRESS, Ray's own variable, for as long as the group runs."""
+    if executor.name != "ray":
+        yield
+        return
+    before = os.environ.get("RAY_ADDRESS")
+    os.environ["RAY_ADDRESS"] = executor.address
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("RAY_ADDRESS", None)
+        else:
+            os.environ["RAY_ADDRESS"] = before
 
 
 def _feed(settings: dict[str, Any], family: Family, root: Path):
@@ -366,9 +382,10 @@ def _run_repeats(args: argparse.Namespace) -> int:
         family = resolve_family(args.family or saved["family"])
         proposer = args.proposer or saved.get("proposer") or _default_proposer()
         root = _campaign_dir(args, family, proposer)
-        # the group's --workers run whole campaigns side by side; each campaign runs one run at a time
-        settings = {**_settings(args, saved.get("settings", {})), "workers": 1, "executor": "local"}
-        args.workers, args.executor = args.workers or 1, args.executor or "local"
+        # The group's --workers run whole campaigns side by side, each loop on this machine running one
+        # run at a time: here, or with --executor ray as a task on the cluster the group connects to.
+        settings = {**_settings(args, saved.get("settings", {})), "workers": 1}
+        args.workers, args.executor = args.workers or 1, settings["executor"]
         group = repeats.plan_group(
             root,
             family=family,
@@ -385,7 +402,7 @@ def _run_repeats(args: argparse.Namespace) -> int:
         return error_exit("loop", err)
     resume_hint = f"autoresearch loop --resume --campaign {root}"
     try:
-        with make_executor(args) as executor:
+        with make_executor(args) as executor, _cluster_for_repeats(executor):
             outcomes = repeats.run_group(group, executor)
     except KeyboardInterrupt:
         print(f"\ninterrupted; group: {root}\nresume with: {resume_hint}", file=sys.stderr)

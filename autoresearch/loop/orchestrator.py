@@ -370,23 +370,18 @@ class Orchestrator:
 
     def _execute(self, intent: Intent) -> RunResult:
         run_id = intent.run_id
-        task = {
-            "family": self.family,
-            "config": intent.config,
-            "run_id": run_id,
-            "seed": intent.seed,
-            "run_dir": self.campaign.paths.run_dir(run_id),
-            "runs_log": self.campaign.paths.runs_log,
-            "timeout": self.settings.timeout_per_run,
-        }
-        cancel = self.scheduler.cancel  # set as the loop unwinds: every run in flight is killed
-        if self.executor is not None and self.executor.name == "ray":
-            return self.executor.map(_run_task, [task], cancel=cancel)[0]
-        return run_experiment(
-            **task,
+        run = self.executor.run_experiment if self.executor is not None else run_experiment
+        return run(
+            self.family,
+            intent.config,
+            run_id=run_id,
+            seed=intent.seed,
+            run_dir=self.campaign.paths.run_dir(run_id),
+            runs_log=self.campaign.paths.runs_log,
+            timeout=self.settings.timeout_per_run,
             on_progress=lambda elapsed: self.view.run_progress(elapsed, run_id),
             on_report=self.stopper.start(run_id) if self.stopper else None,
-            cancel=cancel,
+            cancel=self.scheduler.cancel,  # set as the loop unwinds: every run in flight is killed
         )
 
     def _drain(self) -> None:
@@ -417,8 +412,3 @@ class Orchestrator:
             return RunOutcome(record.config, None, False)
         constraints = self.family.constraints(record.final_metric)
         return RunOutcome(record.config, record.metric, bool(record.feasible), constraints)
-
-
-def _run_task(task: dict[str, Any]) -> RunResult:
-    """One run as a plain function of picklable arguments (a Ray task)."""
-    return run_experiment(**task)

@@ -123,12 +123,15 @@ def run_experiment(
     on_report: Callable[[int, float], bool] | None = None,
     cancel: threading.Event | None = None,
     eval_split: str = SEARCH,
+    die_with_supervisor: bool = False,
 ) -> RunResult:
     """Train ``config`` at ``seed`` in ``run_dir``; the result is also saved as run_dir/result.json.
 
     ``on_report(step, value)`` hears each PROGRESS point; True stops the run early. Setting
     ``cancel`` (another thread) kills the run and raises KeyboardInterrupt, leaving no result.
     ``eval_split="test"`` scores the run on the family's sealed test split (the audit only).
+    ``die_with_supervisor`` (a Ray task): the run is killed when this process dies, instead of
+    outliving it to be adopted by a resume.
     """
     if eval_split not in (SEARCH, TEST) or (eval_split == TEST and not family.has_test_split):
         raise ValueError(f"eval_split {eval_split!r}: family {family.name!r} has no such split")
@@ -159,7 +162,8 @@ def run_experiment(
         info = {"pid": pid, "start_time": born, "deadline": deadline, "timeout": timeout, "cmd": cmd}
         write_json_atomic(run_dir / "process.json", info)
         if born is not None:  # None: no /proc, so nothing to watch with
-            watchdog = tracking.start_watchdog(tracked, pid, born, deadline)
+            supervisor = os.getpid() if die_with_supervisor else None
+            watchdog = tracking.start_watchdog(tracked, pid, born, deadline, supervisor)
 
     try:
         with open(run_dir / "stdout.txt", "wb") as out, open(run_dir / "stderr.txt", "wb") as err:

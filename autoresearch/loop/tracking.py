@@ -14,6 +14,10 @@ kill -9 of the loop or the audit. It waits for the run's first process (train.py
 kills what the run left behind; at the run's deadline plus a grace it kills every process of the
 run and writes ``watchdog.json`` into the run directory, which a resume reads as a timeout. While
 its supervisor lives, the supervisor handles both and kills the watchdog when the run ends.
+
+A run started by a Ray task also names its supervisor (the task's worker process): the watchdog
+then kills the run as soon as the supervisor dies, so that no train.py outlives its task (a Ray
+worker dies with its job, e.g. on kill -9 of the loop; the resumed loop re-runs the run).
 """
 
 from __future__ import annotations
@@ -124,11 +128,25 @@ def kill_all(run_dir: Path, var: str = RUN_ENV, wait_s: float = 10.0) -> int:
         time.sleep(POLL_S)
 
 
-def start_watchdog(run_dir: Path, pid: int, started: int | None, deadline: float) -> subprocess.Popen:
+def start_watchdog(
+    run_dir: Path, pid: int, started: int | None, deadline: float, supervisor: int | None = None
+) -> subprocess.Popen:
     """The watchdog of the run in ``run_dir`` whose first process is ``pid`` (started at ``started``
-    ticks), due to end by ``deadline`` (time.time() seconds)."""
+    ticks), due to end by ``deadline`` (time.time() seconds); with ``supervisor`` (a pid), the run
+    dies with that process too."""
+    watched = [str(supervisor), str(start_time(supervisor))] if supervisor is not None else []
     return subprocess.Popen(
-        [sys.executable, "-I", "-S", __file__, str(run_dir), str(pid), str(started), repr(deadline)],
+        [
+            sys.executable,
+            "-I",
+            "-S",
+            __file__,
+            str(run_dir),
+            str(pid),
+            str(started),
+            repr(deadline),
+            *watched,
+        ],
         cwd="/",
         env={WATCHDOG_ENV: str(run_dir)},
         stdin=subprocess.DEVNULL,
@@ -138,28 +156,31 @@ def start_watchdog(run_dir: Path, pid: int, started: int | None, deadline: float
     )
 
 
-def _wait_exit(pid: int, started: int | None, deadline: float) -> bool:
-    """Wait until ``deadline`` (time.time()) for ``pid``, the process that started at ``started``, to
-    end; True if it did."""
-    fd = _pidfd(pid)
+def _wait_exit(watched: list[tuple[int, int | None]], deadline: float) -> bool:
+    """Wait until ``deadline`` (time.time()) for any of ``watched`` (pid, start time) to end; True if
+    one did."""
+    fds = [fd for fd in (_pidfd(pid) for pid, _ in watched) if fd is not None]
     try:
-        while _running(pid, started):
+        while all(_running(pid, started) for pid, started in watched):
             left = min(deadline - time.time(), 3600.0)  # in steps: select refuses an endless timeout
             if left <= 0:
                 return False
-            if fd is not None:
-                select.select([fd], [], [], left)  # a pidfd is readable once its process exits
+            if len(fds) == len(watched):
+                select.select(fds, [], [], left)  # a pidfd is readable once its process exits
             else:  # no pidfd: poll
                 time.sleep(min(left, 0.5))
         return True
     finally:
-        if fd is not None:
+        for fd in fds:
             os.close(fd)
 
 
-def watch(run_dir: Path, pid: int, started: int | None, deadline: float) -> None:
-    """The watchdog: when ``pid`` ends, kill what the run left; at deadline + grace, kill the run."""
-    if _wait_exit(pid, started, deadline + WATCHDOG_GRACE_S):
+def watch(
+    run_dir: Path, pid: int, started: int | None, deadline: float, supervisor: tuple[int, int | None] | None
+) -> None:
+    """The watchdog: when ``pid`` (or the ``supervisor``) ends, kill what is left of the run; at
+    deadline + grace, kill the run and say so in watchdog.json (read by a resume as a timeout)."""
+    if _wait_exit([(pid, started), *([supervisor] if supervisor else [])], deadline + WATCHDOG_GRACE_S):
         kill_all(run_dir)
         return
     killed = kill_all(run_dir)
@@ -177,6 +198,11 @@ def watch(run_dir: Path, pid: int, started: int | None, deadline: float) -> None
         pass
 
 
+def _ticks(text: str) -> int | None:
+    return None if text == "None" else int(text)
+
+
 if __name__ == "__main__":
-    _dir, _pid, _started, _deadline = sys.argv[1:]
-    watch(Path(_dir), int(_pid), None if _started == "None" else int(_started), float(_deadline))
+    _dir, _pid, _started, _deadline, *_supervisor = sys.argv[1:]
+    _watched = (int(_supervisor[0]), _ticks(_supervisor[1])) if _supervisor else None
+    watch(Path(_dir), int(_pid), _ticks(_started), float(_deadline), _watched)

@@ -1,0 +1,392 @@
+"""Runs on Ray: each training run is one Ray task; the driver (the loop or the audit) alone writes
+the campaign.
+
+- **The family travels with the task.** With ``files="ship"`` (the default) the family directory's
+  files go to the object store (once per version) and each worker writes them once into its own
+  temporary directory; the run happens in a scratch directory on the worker, and its files (the
+  patched train.py, result.json, the stdout and stderr tails, the policy under ``out/``) and its
+  runs.jsonl line come back with the task's result, for the driver to write. No node needs the
+  family's or the campaign's path. ``files="shared"`` has the task read the family and write the run
+  where the driver would, for clusters whose nodes share one filesystem.
+- **PROGRESS streams back while the run trains**, through one actor per executor: each point goes
+  to the driver, whose early-stop pruner answers before train.py's next point is read, exactly as
+  for a local run. The driver's wait loop feeds the live view.
+- **Nothing outlives its task.** A run started by a task dies with the task's worker (its watchdog
+  watches the worker: autoresearch.loop.tracking), and a cancelled task kills its run's process
+  group (a KeyboardInterrupt in the task). A worker dies with its job, so kill -9 of the driver ends
+  every run; ``--resume`` then re-runs them.
+- **Many tasks** (``map``) run on driver threads, ``workers`` at a time: each is a function that
+  may start runs through :meth:`RayExecutor.run_experiment`, so the audit's bookkeeping (what ran
+  already, its logs) stays on the driver too.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import os
+import shutil
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from pathlib import Path
+from typing import Any
+
+from autoresearch.executors import (
+    CANCEL_GRACE_S,
+    CANCEL_POLL_S,
+    Executor,
+    OnResult,
+    R,
+    T,
+    keeping_signal_handlers,
+)
+from autoresearch.extras import require
+from autoresearch.family import SEARCH, Family
+from autoresearch.journal import append_line, write_json_atomic
+from autoresearch.loop.runner import RunResult, run_experiment
+
+FILE_MODES = ("ship", "shared")
+# What of a family directory is not shipped: what its own runs leave there.
+_NOT_SHIPPED_DIRS = {"__pycache__", "out"}
+MAX_SHIPPED_BYTES = 64 * 2**20  # a family above this belongs on a shared filesystem (files="shared")
+TAIL_BYTES = 256 * 2**10  # of stdout.txt and stderr.txt, brought back from the worker
+REMOTE_FILE = "remote.json"  # in the driver's run directory: the node, worker and directory of the run
+DECISION_TIMEOUT_S = 120.0  # a worker waits this long for the driver's early-stop answer, then trains on
+
+
+def family_files(family: Family) -> dict[str, bytes]:
+    """The family directory's files (relative path -> bytes), without what runs leave there."""
+    files: dict[str, bytes] = {}
+    for dirpath, dirnames, filenames in os.walk(family.path):
+        dirnames[:] = sorted(d for d in dirnames if d not in _NOT_SHIPPED_DIRS and not d.startswith("."))
+        for name in sorted(filenames):
+            if name.startswith((".", "runs.jsonl")) or name.endswith((".pyc", ".lock")):
+                continue
+            path = Path(dirpath, name)
+            files[path.relative_to(family.path).as_posix()] = path.read_bytes()
+    size = sum(map(len, files.values()))
+    if size > MAX_SHIPPED_BYTES:
+        raise ValueError(
+            f"{family.path}: {size / 2**20:.0f} MB of files to send to every Ray worker; put the family on a "
+            "filesystem every node sees and use --ray-files shared"
+        )
+    return files
+
+
+def _digest(files: dict[str, bytes]) -> str:
+    h = hashlib.sha256()
+    for name in sorted(files):
+        h.update(name.encode() + b"\0" + hashlib.sha256(files[name]).digest())
+    return h.hexdigest()[:16]
+
+
+def _materialize(digest: str, files: dict[str, bytes], name: str) -> Path:
+    """The family written once per worker machine and version, under its temporary directory."""
+    home = Path(tempfile.gettempdir()) / "autoresearch-families" / digest
+    target = home / name
+    if not target.is_dir():
+        home.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".staging-", dir=home))
+        for rel, data in files.items():
+            (staging / rel).parent.mkdir(parents=True, exist_ok=True)
+            (staging / rel).write_bytes(data)
+        try:
+            os.rename(staging, target)
+        except OSError:  # another task on this machine wrote it first
+            shutil.rmtree(staging, ignore_errors=True)
+    return target
+
+
+def _tail(data: bytes) -> bytes:
+    return data if len(data) <= TAIL_BYTES else b"...(truncated)\n" + data[-TAIL_BYTES:]
+
+
+def _collect(run_dir: Path) -> dict[str, bytes]:
+    """The run's files for the driver: the stdout and stderr tails, the rest whole."""
+    files = {}
+    for path in sorted(p for p in run_dir.rglob("*") if p.is_file()):
+        rel = path.relative_to(run_dir).as_posix()
+        if rel in ("process.json", "watchdog.json"):  # about processes on the worker: nothing to adopt
+            continue
+        data = path.read_bytes()
+        files[rel] = _tail(data) if rel in ("stdout.txt", "stderr.txt") else data
+    return files
+
+
+def remote_run(spec: dict[str, Any], shipped: dict[str, bytes] | None, channel: Any) -> dict[str, Any]:
+    """One run, on a Ray worker (module-level, so Ray pickles it by reference)."""
+    import ray  # on the worker: ray is there, since it runs this
+
+    run_id = spec["run_id"]
+    scratch = None
+    if shipped is not None:
+        family = Family.load(_materialize(spec["digest"], shipped, spec["family_name"]))
+        scratch = Path(tempfile.mkdtemp(prefix=f"autoresearch-{run_id}-"))
+        run_dir, runs_log = scratch / "run", scratch / "runs.jsonl"
+    else:
+        family = Family.load(spec["family_path"])
+        run_dir, runs_log = Path(spec["run_dir"]), Path(spec["runs_log"])
+
+    where = {"node": ray.util.get_node_ip_address(), "worker_pid": os.getpid(), "run_dir": str(run_dir)}
+    channel.started.remote(run_id, where)
+
+    def on_report(step: int, value: float) -> bool:
+        answer = channel.report.remote(run_id, step, value, spec["decide"])
+        return bool(ray.get(answer)) if spec["decide"] else False
+
+    try:
+        result = run_experiment(
+            family,
+            spec["config"],
+            run_id=run_id,
+            seed=spec["seed"],
+            run_dir=run_dir,
+            runs_log=runs_log,
+            timeout=spec["timeout"],
+            on_report=on_report,
+            eval_split=spec["eval_split"],
+            die_with_supervisor=True,
+        )
+        if scratch is None:
+            return {"result": result.to_json()}
+        lines = runs_log.read_bytes().splitlines(keepends=True) if runs_log.exists() else []
+        return {"result": result.to_json(), "files": _collect(run_dir), "log_lines": lines}
+    finally:
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+
+class _Channel:
+    """The actor between the tasks and the driver: PROGRESS points go up, early-stop answers down."""
+
+    def __init__(self) -> None:
+        self.points: dict[str, list[tuple[int, float]]] = {}
+        self.where: dict[str, dict[str, Any]] = {}
+        self.answers: dict[tuple[str, int], asyncio.Future] = {}
+
+    async def started(self, run_id: str, where: dict[str, Any]) -> None:
+        self.where[run_id] = where
+
+    async def report(self, run_id: str, step: int, value: float, decide: bool) -> bool:
+        self.points.setdefault(run_id, []).append((step, value))
+        if not decide:
+            return False
+        answer = asyncio.get_running_loop().create_future()
+        self.answers[(run_id, step)] = answer
+        try:
+            return await asyncio.wait_for(answer, DECISION_TIMEOUT_S)
+        except asyncio.TimeoutError:  # the driver is gone or stuck: train on
+            return False
+        finally:
+            self.answers.pop((run_id, step), None)
+
+    async def take(self, run_id: str) -> tuple[dict[str, Any] | None, list[tuple[int, float]]]:
+        """Where the run started (once), and its PROGRESS points since the last call."""
+        return self.where.pop(run_id, None), self.points.pop(run_id, [])
+
+    async def answer(self, run_id: str, step: int, stop: bool) -> None:
+        future = self.answers.get((run_id, step))
+        if future is not None and not future.done():
+            future.set_result(stop)
+
+
+class RayExecutor(Executor):
+    """Training runs as Ray tasks (module docstring).
+
+    address: an existing cluster ("auto", "host:port" or "ray://host:port"); None connects to the
+    cluster in ``RAY_ADDRESS`` if set, else starts a local instance with ``workers * cpus_per_task``
+    CPUs. gpus_per_task None: one GPU per task when the cluster has GPUs, none otherwise.
+    """
+
+    name = "ray"
+
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int = 1,
+        cpus_per_task: float = 1,
+        gpus_per_task: float | None = None,
+        files: str = "ship",
+    ):
+        ray = require("ray", "ray", "--executor ray")
+        if workers < 1:
+            raise ValueError(f"--workers must be >= 1 (got {workers})")
+        if files not in FILE_MODES:
+            raise ValueError(f"--ray-files must be one of {', '.join(FILE_MODES)} (got {files!r})")
+        self._ray = ray
+        self.workers = workers
+        self.files = files
+        self._started = False
+        address = address or os.environ.get("RAY_ADDRESS") or None
+        if not ray.is_initialized():
+            with keeping_signal_handlers():
+                if address:
+                    ray.init(address=address, log_to_driver=False)
+                else:  # "local": a new instance, never one a `ray start` on this machine left behind
+                    ray.init(
+                        address="local",
+                        num_cpus=workers * cpus_per_task,
+                        include_dashboard=False,
+                        log_to_driver=False,
+                    )
+            self._started = True
+        if gpus_per_task is None:
+            gpus_per_task = 1 if ray.cluster_resources().get("GPU", 0) > 0 else 0
+        self.options = {"num_cpus": cpus_per_task, "num_gpus": gpus_per_task}
+        # No automatic retry: a run whose worker died is re-run by a resume, once, under a new run id.
+        self._remote = ray.remote(max_retries=0, **self.options)(remote_run)
+        self._channel = ray.remote(num_cpus=0)(_Channel).remote()
+        self._shipped: dict[str, Any] = {}  # digest -> object ref of the family's files
+        self._lock = threading.Lock()
+        self._in_flight: set[Any] = set()
+        self._aborting = threading.Event()
+
+    @property
+    def address(self) -> str:
+        """The cluster's address, for processes that should run their tasks on it too."""
+        return self._ray.get_runtime_context().gcs_address
+
+    def map(
+        self,
+        fn: Callable[[T], R],
+        tasks: Sequence[T],
+        on_result: OnResult | None = None,
+        cancel: threading.Event | None = None,
+    ) -> list[R]:
+        """``fn`` over ``tasks`` on ``workers`` driver threads (each may start runs on the cluster);
+        an error or an interrupt cancels every run in flight before the threads are joined."""
+        results: list[Any] = [None] * len(tasks)
+        pool = ThreadPoolExecutor(max_workers=self.workers)
+        try:
+            futures = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
+            for future in as_completed(futures):
+                i = futures[future]
+                results[i] = future.result()
+                if on_result:
+                    on_result(i, results[i])
+        except BaseException:
+            self.abort()
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+        return results
+
+    def abort(self) -> None:
+        """Cancel every run in flight; the threads waiting on them raise KeyboardInterrupt."""
+        self._aborting.set()
+        with self._lock:
+            refs = list(self._in_flight)
+        self._cancel(refs)
+
+    def _cancel(self, refs: list[Any]) -> None:
+        """Cancel ``refs``: a KeyboardInterrupt in each task (the runner then kills its training
+        process group), then the worker killed if it lingers (the run's watchdog ends the run)."""
+        ray = self._ray
+        for ref in refs:
+            ray.cancel(ref)
+        lingering = ray.wait(refs, num_returns=len(refs), timeout=CANCEL_GRACE_S)[1] if refs else []
+        for ref in lingering:
+            ray.cancel(ref, force=True)
+
+    def _ship(self, family: Family) -> tuple[str, Any]:
+        files = family_files(family)
+        digest = _digest(files)
+        with self._lock:
+            if digest not in self._shipped:
+                self._shipped[digest] = self._ray.put(files)
+            return digest, self._shipped[digest]
+
+    def run_experiment(
+        self,
+        family: Family,
+        config: dict[str, Any],
+        *,
+        run_id: str,
+        seed: int,
+        run_dir: Path,
+        runs_log: Path,
+        timeout: float,
+        on_progress: Callable[[float], None] | None = None,
+        on_report: Callable[[int, float], bool] | None = None,
+        cancel: threading.Event | None = None,
+        eval_split: str = SEARCH,
+    ) -> RunResult:
+        """One run as a Ray task, supervised from this thread; the same contract as
+        :func:`autoresearch.loop.runner.run_experiment`."""
+        ray = self._ray
+        spec = {
+            "run_id": run_id,
+            "config": config,
+            "seed": seed,
+            "timeout": timeout,
+            "eval_split": eval_split,
+            "decide": on_report is not None,
+            "family_name": family.path.name,
+        }
+        shipped = None
+        if self.files == "ship":
+            spec["digest"], shipped = self._ship(family)
+        else:
+            spec.update(
+                family_path=str(family.path), run_dir=str(run_dir.resolve()), runs_log=str(runs_log.resolve())
+            )
+        run_dir.mkdir(parents=True, exist_ok=True)
+        ref = self._remote.remote(spec, shipped, self._channel)
+        with self._lock:
+            self._in_flight.add(ref)
+        started = time.monotonic()
+        try:
+            while True:
+                done, _ = ray.wait([ref], timeout=CANCEL_POLL_S)
+                where, points = ray.get(self._channel.take.remote(run_id))
+                if where is not None:  # where the run trains, for whoever looks at the run directory
+                    write_json_atomic(run_dir / REMOTE_FILE, {**where, "files": self.files})
+                for step, value in points:
+                    if on_report is not None:
+                        self._channel.answer.remote(run_id, step, bool(on_report(step, value)))
+                if on_progress is not None:
+                    on_progress(time.monotonic() - started)
+                if done:
+                    break
+                if (cancel is not None and cancel.is_set()) or self._aborting.is_set():
+                    self._cancel([ref])
+                    raise KeyboardInterrupt
+            try:
+                outcome = ray.get(ref)
+            except ray.exceptions.TaskCancelledError:
+                raise KeyboardInterrupt from None
+            except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as err:
+                # The run died with its worker (its watchdog saw to that): a failed run, as a local
+                # run killed from outside is; its files stayed on the worker.
+                reason = f"its Ray worker died ({type(err).__name__}); the run was killed with it"
+                result = RunResult("failed", run_id, None, reason, time.monotonic() - started, None)
+                write_json_atomic(run_dir / "result.json", result.to_json())
+                return result
+        finally:
+            with self._lock:
+                self._in_flight.discard(ref)
+        if "files" in outcome:
+            self._write_back(run_dir, runs_log, outcome)
+        return RunResult.from_json(outcome["result"])
+
+    @staticmethod
+    def _write_back(run_dir: Path, runs_log: Path, outcome: dict[str, Any]) -> None:
+        """What a shipped run left on its worker, written where a local run would have left it."""
+        for rel, data in outcome["files"].items():
+            target = run_dir / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if rel == "result.json":
+                continue  # written last: it marks the run as finished for a resume
+            target.write_bytes(data)
+        for line in outcome["log_lines"]:
+            append_line(runs_log, line)
+        write_json_atomic(run_dir / "result.json", outcome["result"])
+
+    def close(self) -> None:
+        if self._started:
+            with keeping_signal_handlers():
+                self._ray.shutdown()
+            self._started = False
