@@ -72,6 +72,7 @@ PARALLEL_LOG = "results/logs/bench_loop_parallel.txt"  # bench_loop_parallel.py'
 SB3_LOG = "results/logs/bench_sb3.txt"  # bench_sb3.py's committed output
 EVALUATION_LOG = "results/logs/bench_evaluation.txt"  # bench_evaluation.py's committed output
 INSTALL_LOG = "results/logs/bench_install.txt"  # bench_install.py's committed output
+RAY_LOG = "results/logs/bench_ray_scaling.txt"  # bench_ray_scaling.py's committed output
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
 
@@ -374,6 +375,38 @@ def install_rows() -> list[Row]:
     return [(what, value, comparison, f"from {INSTALL_LOG}") for what, value, comparison in cells]
 
 
+def ray_rows() -> list[Row]:
+    """Campaign and audit wall time against Ray workers, and Ray's overhead per run, from
+    bench_ray_scaling.py's committed output (it starts a Ray instance per worker count)."""
+    log = ROOT / RAY_LOG
+    what = "Ray workers: campaign (--early-stop median) and audit wall time"
+    if not log.is_file():
+        return [(what, "not run", "", f"benchmarks/bench_ray_scaling.py > {RAY_LOG}")]
+    text = log.read_text(encoding="utf-8")
+    rows: list[Row] = [
+        (
+            f"{what}, {workers} vs 1 worker(s)",
+            f"{campaign} / {audit}",
+            f"{campaign_ratio} / {audit_ratio}",
+            f"sleep-dominated toy runs, local Ray instance; {RAY_LOG}",
+        )
+        for workers, campaign, campaign_ratio, audit, audit_ratio in (
+            cells for cells in table_cells(text, "") if len(cells) == 5 and cells[0].isdigit()
+        )
+        if workers != "1"
+    ]
+    rows += [
+        (
+            f"Ray overhead per run, {mode.split(', ')[1]}",
+            f"{seconds} s per run",
+            f"{extra} s vs local",
+            RAY_LOG,
+        )
+        for mode, seconds, extra in table_cells(text, "Ray task")
+    ]
+    return rows
+
+
 def evidence_rows() -> list[Row]:
     """Experiments and wall-clock to the family's target (single seed, feasible runs) in each
     committed evidence campaign, and its best candidate's reseeded verification (nothing is run)."""
@@ -521,7 +554,7 @@ def main() -> int:
         rows += compare_rows()
         rows += early_stop_rows()
         rows += evidence_rows()
-        rows += sb3_rows() + evaluation_rows() + install_rows()
+        rows += sb3_rows() + evaluation_rows() + install_rows() + ray_rows()
         rows.append(main_job_row())
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"

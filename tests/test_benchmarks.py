@@ -173,6 +173,22 @@ def test_install_rows_read_the_committed_table(tmp_path, monkeypatch):
     assert rows[0][3] == "from results/logs/bench_install.txt"
 
 
+def test_ray_rows_read_the_committed_tables(tmp_path, monkeypatch):
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    assert run_all.ray_rows()[0][1] == "not run"
+    (tmp_path / "results" / "logs").mkdir(parents=True)
+    (tmp_path / "results" / "logs" / "bench_ray_scaling.txt").write_text(
+        "Python 3.11\n\n| Ray workers | campaign wall | vs 1 worker | audit wall | vs 1 worker |\n"
+        "|---:|---:|---:|---:|---:|\n| 1 | 20.0 s | 1.00x | 24.0 s | 1.00x |\n"
+        "| 4 | 8.0 s | 0.40x | 6.0 s | 0.25x |\n\n"
+        "| one run at a time, no sleep | seconds per run | Ray overhead per run |\n|---|---:|---:|\n"
+        "| local subprocess | 0.500 | reference |\n| Ray task, --ray-files ship | 0.510 | +0.010 |\n"
+    )
+    scaling, ship = run_all.ray_rows()
+    assert scaling[0].endswith("4 vs 1 worker(s)") and scaling[1:3] == ("8.0 s / 6.0 s", "0.40x / 0.25x")
+    assert ship[:3] == ("Ray overhead per run, --ray-files ship", "0.510 s per run", "+0.010 s vs local")
+
+
 def test_evidence_rows_read_the_committed_campaigns():
     rows = run_all.evidence_rows()
     assert [row[0].split(",")[1].split(":")[0].strip() for row in rows] == ["rendezvous", "docking"]
