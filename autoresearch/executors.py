@@ -84,20 +84,31 @@ class LocalExecutor(Executor):
         cancel: threading.Event | None = None,
     ) -> list[R]:
         results: list[Any] = [None] * len(tasks)
-        if self.workers == 1:
-            for i, task in enumerate(tasks):
-                results[i] = fn(task)
-                if on_result:
-                    on_result(i, results[i])
-            return results
-        with ThreadPoolExecutor(max_workers=self.workers) as pool:
-            futures = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
-            for future in as_completed(futures):
-                i = futures[future]
-                results[i] = future.result()
-                if on_result:
-                    on_result(i, results[i])
+        pool = ThreadPoolExecutor(max_workers=self.workers) if self.workers > 1 else None
+        try:
+            if pool is None:
+                for i, task in enumerate(tasks):
+                    results[i] = fn(task)
+                    if on_result:
+                        on_result(i, results[i])
+            else:
+                futures = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
+                for future in as_completed(futures):
+                    i = futures[future]
+                    results[i] = future.result()
+                    if on_result:
+                        on_result(i, results[i])
+        except BaseException:  # an error, Ctrl-C or SIGTERM: the runs in flight stop before the join
+            self.abort()
+            raise
+        finally:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
         return results
+
+    def abort(self) -> None:
+        """Stop the runs in flight of the tasks' threads, so that joining them does not wait for
+        their training: a local run is stopped by its own supervisor (runner.run_experiment)."""
 
 
 @contextmanager

@@ -15,9 +15,10 @@ the campaign.
   watches the worker: autoresearch.loop.tracking), and a cancelled task kills its run's process
   group (a KeyboardInterrupt in the task). A worker dies with its job, so kill -9 of the driver ends
   every run; ``--resume`` then re-runs them.
-- **Many tasks** (``map``) run on driver threads, ``workers`` at a time: each is a function that
-  may start runs through :meth:`RayExecutor.run_experiment`, so the audit's bookkeeping (what ran
-  already, its logs) stays on the driver too.
+- **Many tasks** (``map``, the local executor's) run on driver threads, ``workers`` at a time: each
+  is a function that may start runs through :meth:`RayExecutor.run_experiment`, so the audit's
+  bookkeeping (what ran already, its logs) stays on the driver too; an interrupt cancels every
+  run in flight before the threads are joined.
 """
 
 from __future__ import annotations
@@ -29,18 +30,14 @@ import shutil
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from autoresearch.executors import (
     CANCEL_GRACE_S,
     CANCEL_POLL_S,
-    Executor,
-    OnResult,
-    R,
-    T,
+    LocalExecutor,
     keeping_signal_handlers,
 )
 from autoresearch.extras import require
@@ -193,7 +190,7 @@ class _Channel:
             future.set_result(stop)
 
 
-class RayExecutor(Executor):
+class RayExecutor(LocalExecutor):
     """Training runs as Ray tasks (module docstring).
 
     address: an existing cluster ("auto", "host:port" or "ray://host:port"); None connects to the
@@ -212,12 +209,10 @@ class RayExecutor(Executor):
         files: str = "ship",
     ):
         ray = require("ray", "ray", "--executor ray")
-        if workers < 1:
-            raise ValueError(f"--workers must be >= 1 (got {workers})")
+        super().__init__(workers)
         if files not in FILE_MODES:
             raise ValueError(f"--ray-files must be one of {', '.join(FILE_MODES)} (got {files!r})")
         self._ray = ray
-        self.workers = workers
         self.files = files
         self._started = False
         address = address or os.environ.get("RAY_ADDRESS") or None
@@ -248,31 +243,6 @@ class RayExecutor(Executor):
     def address(self) -> str:
         """The cluster's address, for processes that should run their tasks on it too."""
         return self._ray.get_runtime_context().gcs_address
-
-    def map(
-        self,
-        fn: Callable[[T], R],
-        tasks: Sequence[T],
-        on_result: OnResult | None = None,
-        cancel: threading.Event | None = None,
-    ) -> list[R]:
-        """``fn`` over ``tasks`` on ``workers`` driver threads (each may start runs on the cluster);
-        an error or an interrupt cancels every run in flight before the threads are joined."""
-        results: list[Any] = [None] * len(tasks)
-        pool = ThreadPoolExecutor(max_workers=self.workers)
-        try:
-            futures = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
-            for future in as_completed(futures):
-                i = futures[future]
-                results[i] = future.result()
-                if on_result:
-                    on_result(i, results[i])
-        except BaseException:
-            self.abort()
-            raise
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
-        return results
 
     def abort(self) -> None:
         """Cancel every run in flight; the threads waiting on them raise KeyboardInterrupt."""
