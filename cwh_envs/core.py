@@ -17,6 +17,7 @@ from gymnasium import spaces
 
 from cwh_envs import dynamics
 from cwh_envs.cbf import safe_actions
+from cwh_envs.constraints import CONE_TOLERANCE, SPEED_TOLERANCE, cone_terms, speed_margin
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
@@ -47,6 +48,8 @@ class DockingReward(RendezvousReward):
     # The 1 m success radius makes d_H / success_distance 25 times larger than rendezvous's 25 m.
     terminal_weight: float = 0.1
     koz_weight: float = 1.0  # per step that ends inside the keep-out sphere
+    speed_weight: float = 1.0  # per step that ends above the speed limit (when the problem has one)
+    cone_weight: float = 1.0  # per step that ends outside the approach cone (when the problem has one)
 
 
 def parse_kwargs(problem_cls: type, reward_cls: type, kwargs: dict[str, Any]) -> tuple[Any, Any]:
@@ -264,11 +267,20 @@ class DockingCore(RendezvousCore):
         super().__init__(problem, reward, num_envs)
         self.violations = np.zeros(num_envs, dtype=np.int64)
         self.min_clearance = np.full(num_envs, np.inf)
+        # The optional constraints (cwh_envs.constraints): steps broken and least margin, per episode.
+        self.extra = [
+            name for name, on in (("speed", problem.speed_limit), ("cone", problem.approach_cone)) if on
+        ]
+        self.broken = {name: np.zeros(num_envs, dtype=np.int64) for name in self.extra}
+        self.least = {name: np.full(num_envs, np.inf) for name in self.extra}
 
     def start(self, rows: Any, states: np.ndarray, goals: np.ndarray | None = None) -> None:
         super().start(rows, states, goals)
         self.violations[rows] = 0
         self.min_clearance[rows] = np.inf
+        for name in self.extra:
+            self.broken[name][rows] = 0
+            self.least[name][rows] = np.inf
 
     def observe(self) -> np.ndarray:
         return docking_observation(self.states, self.goals, self.steps, self.problem.horizon)
@@ -277,21 +289,52 @@ class DockingCore(RendezvousCore):
         info = super().state_info()
         info["clearance"] = np.linalg.norm(self.states[:, :3], axis=1) - self.problem.koz_radius
         info["in_koz"] = info["clearance"] < 0.0
+        if self.problem.speed_limit is not None:
+            info["speed_margin"] = speed_margin(self.states, self.goals, self.problem.speed_limit)
+        if self.problem.approach_cone is not None:
+            region, _, angle = cone_terms(self.states, self.goals, self.problem.approach_cone)
+            info["in_cone_region"], info["cone_angle"] = region, angle
         return info
+
+    def _broken(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Per optional constraint: whether this step broke it, and its margin (inf where it does not apply)."""
+        out = {}
+        if "speed" in self.extra:
+            out["speed"] = (info["speed_margin"] < -SPEED_TOLERANCE, info["speed_margin"])
+        if "cone" in self.extra:
+            region, slack, angle = cone_terms(self.states, self.goals, self.problem.approach_cone)
+            margin = np.where(region, self.problem.approach_cone[0] - angle, np.inf)
+            out["cone"] = (region & (slack < -CONE_TOLERANCE), margin)
+        return out
 
     def _accumulate(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         self.violations += info["in_koz"]
         np.minimum(self.min_clearance, info["clearance"], out=self.min_clearance)
-        return {"cost": info["in_koz"].astype(np.float64)}
+        costs = {"cost_keep_out": info["in_koz"].astype(np.float64)}
+        for name, (broken, margin) in self._broken(info).items():
+            self.broken[name] += broken
+            np.minimum(self.least[name], margin, out=self.least[name])
+            costs[f"cost_{name}"] = broken.astype(np.float64)
+        if not self.extra:  # the paper's problem: one constraint, one cost
+            return {"cost": costs["cost_keep_out"]}
+        return {"cost": sum(costs.values()), **costs}  # Safety-Gymnasium: the total and each part
 
     def _extra_terms(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        return {"keep_out": np.where(info["in_koz"], -self.reward.koz_weight, 0.0)}
+        terms = {"keep_out": np.where(info["in_koz"], -self.reward.koz_weight, 0.0)}
+        weights = {"speed": self.reward.speed_weight, "cone": self.reward.cone_weight}
+        for name, (broken, _) in self._broken(info).items():
+            terms[name] = np.where(broken, -weights[name], 0.0)
+        return terms
 
     def _final_info(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         final = super()._final_info(info)
         final["is_success"] &= self.violations == 0
         final["violation_rate"] = self.violations / self.problem.horizon
         final["min_clearance"] = self.min_clearance.copy()
+        for name in self.extra:
+            final["is_success"] &= self.broken[name] == 0
+            final[f"{name}_violation_rate"] = self.broken[name] / self.problem.horizon
+            final[f"min_{name}_margin"] = self.least[name].copy()
         return final
 
 

@@ -92,12 +92,37 @@ class CWHDockKOZEnv(CWHEnv):
     With :class:`~cwh_envs.wrappers.CBFSafetyFilter` every step also has ``cbf_active``,
     ``cbf_infeasible`` and ``cbf_correction_norm``.
 
+    ## Path constraints (optional)
+
+    ``speed_limit=(v0, v1)`` caps the relative speed by the distance to the docking point,
+    ``||v|| <= v0 + v1 ||r - g||`` (ACT3's docking limit); ``approach_cone=(half_angle_deg, radius)``
+    keeps the chaser, within ``radius`` of ``g``, inside the cone with apex ``g`` about the outward
+    docking axis ``g / ||g||`` (:mod:`cwh_envs.constraints`). Both default to ``None``, the paper's
+    problem, whose info is as above. With either on, a step broken costs ``speed_weight`` /
+    ``cone_weight`` (1.0) in ``reward_terms`` (``speed``, ``cone``), success also needs no step
+    broken, and the info gains:
+
+    | Key                      | When              | Meaning                                                   |
+    |--------------------------|-------------------|-----------------------------------------------------------|
+    | ``speed_margin``         | reset, every step | ``v0 + v1 ||r - g|| - ||v||``, m/s (negative: over the limit) |
+    | ``in_cone_region``       | reset, every step | ``||r - g|| <= radius``                                   |
+    | ``cone_angle``           | reset, every step | angle of ``r - g`` from the docking axis, deg (0 at ``g``) |
+    | ``cost_keep_out``        | every step        | 1.0 if the step ended inside the sphere                   |
+    | ``cost_speed``           | every step        | 1.0 if the step ended over the speed limit                |
+    | ``cost_cone``            | every step        | 1.0 if the step ended in the region, outside the cone     |
+    | ``cost``                 | every step        | the sum of the costs (Safety-Gymnasium's total)           |
+    | ``speed_violation_rate`` | at ``k = H``      | fraction of the ``H`` steps over the speed limit          |
+    | ``min_speed_margin``     | at ``k = H``      | least ``speed_margin`` over ``x_1 .. x_H``, m/s           |
+    | ``cone_violation_rate``  | at ``k = H``      | fraction of the ``H`` steps in the region outside the cone |
+    | ``min_cone_margin``      | at ``k = H``      | least ``half_angle - cone_angle`` over the steps in the region, deg (inf if none) |
+
     ## Arguments
 
     Every :class:`cwh_envs.problems.DockingProblem` field (``n, dt, mass, discretization, horizon,
     u_max, koz_radius, goal_radius, margin, start_distance, success_distance, success_speed`` and
-    the sampler's ``start_cone_deg, velocity_box, pierce_depth``), the reward weights ``progress_weight=0.1, effort_weight=0.01, terminal_weight=0.1,
-    success_bonus=10.0, koz_weight=1.0``, ``start_pool`` (``None``: fresh draws, the default; or a
+    the sampler's ``start_cone_deg, velocity_box, pierce_depth``, the optional ``speed_limit,
+    approach_cone``), the reward weights ``progress_weight=0.1, effort_weight=0.01, terminal_weight=0.1,
+    success_bonus=10.0, koz_weight=1.0, speed_weight=1.0, cone_weight=1.0``, ``start_pool`` (``None``: fresh draws, the default; or a
     pool size) and ``render_mode`` (``None`` or ``"rgb_array"``).
     ``self.problem``, ``self.state`` (the (6,) SI state) and ``self.goal`` are public.
     """

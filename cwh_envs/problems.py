@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cwh_envs.constraints import check_approach_cone, check_speed_limit
 from cwh_envs.dynamics import DISCRETIZATIONS, MASS, MEAN_MOTION, TIME_STEP, cwh_matrices
 
 # The longest episode, in steps. 10**5 steps of the default 10 s are about 180 orbits, over 400
@@ -84,9 +85,14 @@ class DockingProblem(_Orbit):
     pierce_depth: float = 0.5  # m, the unconstrained path must dip this far inside R + delta
     success_distance: float = 1.0  # m, terminal distance to the docking point
     success_speed: float = 0.05  # m/s, terminal relative speed
+    # Optional path constraints (cwh_envs.constraints); None, the default, is the paper's problem.
+    speed_limit: tuple[float, float] | None = None  # (v0 m/s, v1 1/s): ||v|| <= v0 + v1 ||r - g||
+    approach_cone: tuple[float, float] | None = None  # (half angle deg, radius m) about g / ||g|| at g
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        object.__setattr__(self, "speed_limit", check_speed_limit(self.speed_limit))
+        object.__setattr__(self, "approach_cone", check_approach_cone(self.approach_cone))
         for name in ("koz_radius", "goal_radius", "success_distance", "success_speed"):
             _positive(name, getattr(self, name))
         if not (_real(self.margin) and self.margin >= 0):
