@@ -16,6 +16,7 @@ import numpy as np
 # A constraint counts as violated only beyond this slack: the expert meets it to solver accuracy.
 SPEED_TOLERANCE = 1e-7  # m/s
 CONE_TOLERANCE = 1e-7  # m, on a^T (r - g) - cos(theta) ||r - g||
+APEX = 1e-6  # m: closer to the port than this, a point counts as at the cone's apex
 
 
 def check_speed_limit(value) -> tuple[float, float] | None:
@@ -65,12 +66,14 @@ def cone_terms(
     states: np.ndarray, goals: np.ndarray, approach_cone: tuple[float, float]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(in the cone's region, its slack ``a^T (r - g) - cos(theta) ||r - g||`` in m, the angle of
-    ``r - g`` from the axis in degrees; 0 at the port), each (N,)."""
+    ``r - g`` from the axis in degrees), each (N,). Within APEX of the port the angle is 0: there
+    it is round-off, and the slack (which the cost reads) is zero to within its tolerance anyway."""
     half_angle, radius = approach_cone
     offset = states[:, :3] - goals
     distance = np.linalg.norm(offset, axis=1)
     along = np.einsum("ij,ij->i", cone_axis(goals), offset)
     slack = along - np.cos(np.radians(half_angle)) * distance
     with np.errstate(invalid="ignore", divide="ignore"):
-        angle = np.degrees(np.arccos(np.clip(np.where(distance > 0, along / distance, 1.0), -1.0, 1.0)))
+        cosine = np.where(distance > APEX, along / distance, 1.0)
+    angle = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
     return distance <= radius, slack, angle
