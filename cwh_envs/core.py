@@ -236,7 +236,7 @@ class RendezvousCore:
             "progress": w.progress_weight * (previous - info["distance"]),
             "effort": -w.effort_weight * np.einsum("ij,ij->i", actions, actions),
             "terminal": np.where(terminated, terminal, 0.0),
-            **self._extra_terms(info),
+            **self._extra_terms(info, extra),
         }
         reward = sum(terms.values())
         return reward, terminated, {**info, **extra, "reward_terms": terms}, final
@@ -245,7 +245,10 @@ class RendezvousCore:
         """Update per-episode accumulators; returns step-only info (not given at reset)."""
         return {}
 
-    def _extra_terms(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def _extra_terms(
+        self, info: dict[str, np.ndarray], extra: dict[str, np.ndarray]
+    ) -> dict[str, np.ndarray]:
+        """Reward terms beyond the shared ones, from the step's info and _accumulate's costs."""
         return {}
 
     def _final_info(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -319,11 +322,13 @@ class DockingCore(RendezvousCore):
             return {"cost": costs["cost_keep_out"]}
         return {"cost": sum(costs.values()), **costs}  # Safety-Gymnasium: the total and each part
 
-    def _extra_terms(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def _extra_terms(
+        self, info: dict[str, np.ndarray], extra: dict[str, np.ndarray]
+    ) -> dict[str, np.ndarray]:
         terms = {"keep_out": np.where(info["in_koz"], -self.reward.koz_weight, 0.0)}
         weights = {"speed": self.reward.speed_weight, "cone": self.reward.cone_weight}
-        for name, (broken, _) in self._broken(info).items():
-            terms[name] = np.where(broken, -weights[name], 0.0)
+        for name in self.extra:  # the step's costs, as _accumulate found them
+            terms[name] = np.where(extra[f"cost_{name}"] > 0, -weights[name], 0.0)
         return terms
 
     def _final_info(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
