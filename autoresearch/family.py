@@ -30,6 +30,13 @@ SEARCH, TEST = "search", "test"  # the evaluation splits: selected on, and seale
 PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
 
+def own_file(name: str) -> bool:
+    """Whether a file of this name in a family directory is one of the family's own, not what runs
+    leave there: the log of manual runs and its lock, byte code, hidden files (what ``init`` copies
+    from a template and the Ray executor ships to its workers)."""
+    return not (name.startswith((".", "runs.jsonl")) or name.endswith((".pyc", ".lock")))
+
+
 class FamilyError(ValueError):
     """The family directory does not satisfy the contract."""
 

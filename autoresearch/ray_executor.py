@@ -41,7 +41,7 @@ from autoresearch.executors import (
     keeping_signal_handlers,
 )
 from autoresearch.extras import require
-from autoresearch.family import SEARCH, Family
+from autoresearch.family import SEARCH, Family, own_file
 from autoresearch.journal import append_line, write_json_atomic
 from autoresearch.loop.runner import RunResult, run_experiment
 
@@ -59,9 +59,7 @@ def family_files(family: Family) -> dict[str, bytes]:
     files: dict[str, bytes] = {}
     for dirpath, dirnames, filenames in os.walk(family.path):
         dirnames[:] = sorted(d for d in dirnames if d not in _NOT_SHIPPED_DIRS and not d.startswith("."))
-        for name in sorted(filenames):
-            if name.startswith((".", "runs.jsonl")) or name.endswith((".pyc", ".lock")):
-                continue
+        for name in sorted(filter(own_file, filenames)):
             path = Path(dirpath, name)
             files[path.relative_to(family.path).as_posix()] = path.read_bytes()
     size = sum(map(len, files.values()))

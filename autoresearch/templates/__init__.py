@@ -18,7 +18,7 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
-from autoresearch.family import PLAIN_NAME, family_problems
+from autoresearch.family import PLAIN_NAME, family_problems, own_file
 
 GROUP = "autoresearch.templates"
 MINIMAL_TEMPLATE = Path(__file__).resolve().parent / "minimal"
@@ -35,12 +35,6 @@ def minimal():
 def available() -> dict[str, EntryPoint]:
     """Template name -> its entry point, over every installed package."""
     return {ep.name: ep for ep in entry_points(group=GROUP)}
-
-
-def _copyable(name: str) -> bool:
-    """Not what a family directory may hold beside its own files (only files are copied, so no
-    run output directory either): the log of manual runs and its lock, byte code, hidden files."""
-    return not (name.startswith((".", "runs.jsonl")) or name.endswith((".pyc", ".lock")))
 
 
 def write_family(target: Path, template: str, name: str | None = None) -> dict[str, Any]:
@@ -65,7 +59,7 @@ def write_family(target: Path, template: str, name: str | None = None) -> dict[s
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
     try:
         for item in source.iterdir():
-            if item.is_file() and _copyable(item.name) and item.name != "family.json":
+            if item.is_file() and own_file(item.name) and item.name != "family.json":  # no run output dir
                 (staging / item.name).write_bytes(item.read_bytes())
         (staging / "family.json").write_text(json.dumps(registry, indent=2) + "\n", encoding="utf-8")
         problems = family_problems(staging)
