@@ -133,7 +133,7 @@ class Family:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Family:
         path = Path(path).resolve()
-        registry, space, problems = _read(path)
+        registry, space, train_source, problems = _read(path)
         if problems:
             raise FamilyError(problems[0])
         return cls(
@@ -141,7 +141,7 @@ class Family:
             name=registry["name"],
             program=(path / "program.md").read_text(encoding="utf-8"),
             program_blind=(path / "program_blind.md").read_text(encoding="utf-8"),
-            train_source=(path / "train.py").read_text(encoding="utf-8"),
+            train_source=train_source,  # the text that was checked, read once
             registry=registry,
             space=space,
         )
@@ -151,26 +151,27 @@ def family_problems(path: str | os.PathLike[str]) -> list[str]:
     """Every problem of a family directory that can be seen without running it, one line each:
     missing files, family.json field by field, and train.py's editable region against it
     (``autoresearch check --family``; :meth:`Family.load` raises the first)."""
-    return _read(Path(path).resolve())[2]
+    return _read(Path(path).resolve())[-1]
 
 
-def _read(path: Path) -> tuple[Any, SearchSpace | None, list[str]]:
+def _read(path: Path) -> tuple[Any, SearchSpace | None, str | None, list[str]]:
+    """(family.json's registry, its search space, train.py's text, every problem found)."""
     if not path.is_dir():
-        return None, None, [f"{path}: not a directory"]
+        return None, None, None, [f"{path}: not a directory"]
     missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
     problems = [f"{path}: missing {', '.join(missing)} (see docs/family-contract.md)"] if missing else []
     if "family.json" in missing:
-        return None, None, problems
+        return None, None, None, problems
     try:
         registry = json.loads((path / "family.json").read_text(encoding="utf-8"))
     except ValueError as err:
-        return None, None, [*problems, f"{path / 'family.json'}: not valid JSON ({err})"]
+        return None, None, None, [*problems, f"{path / 'family.json'}: not valid JSON ({err})"]
     space, registry_problems = _registry_problems(registry, path / "family.json")
     problems += registry_problems
-    if space is not None and "train.py" not in missing:
-        source = (path / "train.py").read_text(encoding="utf-8")
+    source = None if "train.py" in missing else (path / "train.py").read_text(encoding="utf-8")
+    if space is not None and source is not None:
         problems += _train_py_problems(source, registry, space, path / "train.py")
-    return registry, space, problems
+    return registry, space, source, problems
 
 
 def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, list[str]]:
