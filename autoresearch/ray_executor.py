@@ -50,6 +50,9 @@ FILE_MODES = ("ship", "shared")
 _NOT_SHIPPED_DIRS = {"__pycache__", "out"}
 MAX_SHIPPED_BYTES = 64 * 2**20  # a family above this belongs on a shared filesystem (files="shared")
 TAIL_BYTES = 256 * 2**10  # of stdout.txt and stderr.txt, brought back from the worker
+# Run files not sent back: about the worker's processes (nothing to adopt), and the result, which
+# travels as the task's value and is written last.
+NOT_SENT_BACK = ("process.json", "watchdog.json", "result.json")
 REMOTE_FILE = "remote.json"  # in the driver's run directory: the node, worker and directory of the run
 DECISION_TIMEOUT_S = 120.0  # a worker waits this long for the driver's early-stop answer, then trains on
 
@@ -104,7 +107,7 @@ def _collect(run_dir: Path) -> dict[str, bytes]:
     files = {}
     for path in sorted(p for p in run_dir.rglob("*") if p.is_file()):
         rel = path.relative_to(run_dir).as_posix()
-        if rel in ("process.json", "watchdog.json"):  # about processes on the worker: nothing to adopt
+        if rel in NOT_SENT_BACK:
             continue
         data = path.read_bytes()
         files[rel] = _tail(data) if rel in ("stdout.txt", "stderr.txt") else data
@@ -128,9 +131,8 @@ def remote_run(spec: dict[str, Any], shipped: dict[str, bytes] | None, channel: 
     where = {"node": ray.util.get_node_ip_address(), "worker_pid": os.getpid(), "run_dir": str(run_dir)}
     channel.started.remote(run_id, where)
 
-    def on_report(step: int, value: float) -> bool:
-        answer = channel.report.remote(run_id, step, value, spec["decide"])
-        return bool(ray.get(answer)) if spec["decide"] else False
+    def on_report(step: int, value: float) -> bool:  # the driver's early-stop pruner decides
+        return bool(ray.get(channel.report.remote(run_id, step, value)))
 
     try:
         result = run_experiment(
@@ -141,7 +143,7 @@ def remote_run(spec: dict[str, Any], shipped: dict[str, bytes] | None, channel: 
             run_dir=run_dir,
             runs_log=runs_log,
             timeout=spec["timeout"],
-            on_report=on_report,
+            on_report=on_report if spec["decide"] else None,  # no pruner: nothing to stream
             eval_split=spec["eval_split"],
             die_with_supervisor=True,
         )
@@ -165,10 +167,8 @@ class _Channel:
     async def started(self, run_id: str, where: dict[str, Any]) -> None:
         self.where[run_id] = where
 
-    async def report(self, run_id: str, step: int, value: float, decide: bool) -> bool:
+    async def report(self, run_id: str, step: int, value: float) -> bool:
         self.points.setdefault(run_id, []).append((step, value))
-        if not decide:
-            return False
         answer = asyncio.get_running_loop().create_future()
         self.answers[(run_id, step)] = answer
         try:
@@ -292,11 +292,11 @@ class RayExecutor(LocalExecutor):
             "timeout": timeout,
             "eval_split": eval_split,
             "decide": on_report is not None,
-            "family_name": family.path.name,
         }
         shipped = None
         if self.files == "ship":
             spec["digest"], shipped = self._ship(family)
+            spec["family_name"] = family.path.name
         else:
             spec.update(
                 family_path=str(family.path), run_dir=str(run_dir.resolve()), runs_log=str(runs_log.resolve())
@@ -312,9 +312,8 @@ class RayExecutor(LocalExecutor):
                 where, points = ray.get(self._channel.take.remote(run_id))
                 if where is not None:  # where the run trains, for whoever looks at the run directory
                     write_json_atomic(run_dir / REMOTE_FILE, {**where, "files": self.files})
-                for step, value in points:
-                    if on_report is not None:
-                        self._channel.answer.remote(run_id, step, bool(on_report(step, value)))
+                for step, value in points:  # only a run with a pruner sends them
+                    self._channel.answer.remote(run_id, step, bool(on_report(step, value)))
                 if on_progress is not None:
                     on_progress(time.monotonic() - started)
                 if done:
@@ -344,14 +343,11 @@ class RayExecutor(LocalExecutor):
     def _write_back(run_dir: Path, runs_log: Path, outcome: dict[str, Any]) -> None:
         """What a shipped run left on its worker, written where a local run would have left it."""
         for rel, data in outcome["files"].items():
-            target = run_dir / rel
-            target.parent.mkdir(parents=True, exist_ok=True)
-            if rel == "result.json":
-                continue  # written last: it marks the run as finished for a resume
-            target.write_bytes(data)
+            (run_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+            (run_dir / rel).write_bytes(data)
         for line in outcome["log_lines"]:
             append_line(runs_log, line)
-        write_json_atomic(run_dir / "result.json", outcome["result"])
+        write_json_atomic(run_dir / "result.json", outcome["result"])  # last: a resume reads it as finished
 
     def close(self) -> None:
         if self._started:
