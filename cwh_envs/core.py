@@ -17,6 +17,7 @@ from gymnasium import spaces
 
 from cwh_envs import dynamics
 from cwh_envs.cbf import safe_actions
+from cwh_envs.cbf_multi import safe_actions_multi
 from cwh_envs.constraints import CONE_TOLERANCE, SPEED_TOLERANCE, cone_terms, speed_margin
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
@@ -136,18 +137,30 @@ def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
     return np.clip(a, -1.0, 1.0)
 
 
-def filter_actions(actions: np.ndarray, states: np.ndarray, problem: DockingProblem, margin: float):
-    """Apply the predictive CBF to normalised actions; returns (safe normalised actions, CBFResult)."""
+def filter_actions(
+    actions: np.ndarray, states: np.ndarray, problem: DockingProblem, margin: float, goals: np.ndarray
+):
+    """Apply the predictive CBF to normalised actions; returns (safe normalised actions, result).
+
+    The keep-out alone (the paper's problem) goes through :func:`cwh_envs.cbf.safe_actions`; with a
+    speed limit or an approach cone every barrier goes into one QP,
+    :func:`cwh_envs.cbf_multi.safe_actions_multi`, whose result also says what it ``dropped``.
+    """
     a, b = problem.matrices()
-    result = safe_actions(
-        actions * problem.u_max,
-        states,
-        a,
-        b,
-        koz_radius=problem.koz_radius,
-        margin=margin,
-        u_max=problem.u_max,
-    )
+    common = dict(koz_radius=problem.koz_radius, margin=margin, u_max=problem.u_max)
+    if problem.speed_limit is None and problem.approach_cone is None:
+        result = safe_actions(actions * problem.u_max, states, a, b, **common)
+    else:
+        result = safe_actions_multi(
+            actions * problem.u_max,
+            states,
+            goals,
+            a,
+            b,
+            speed_limit=problem.speed_limit,
+            approach_cone=problem.approach_cone,
+            **common,
+        )
     # Float rounding of u / u_max may land a hair outside the box the env clips to.
     return np.clip(np.asarray(result.u) / problem.u_max, -1.0, 1.0), result
 

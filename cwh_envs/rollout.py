@@ -41,7 +41,8 @@ class Flight:
     ``states`` (N, H+1, 6) [m, m/s]; ``thrust`` (N, H, 3) [N], what was applied (after the filter);
     ``terminal_distance``, ``terminal_speed`` (N,); ``is_success`` (N,) bool; docking only (else
     None): ``violation_rate`` (N,) share of steps 1..H ending inside the keep-out, ``min_clearance``
-    (N,) [m], and, with the filter, ``cbf_active`` / ``cbf_infeasible`` (N, H) bool.
+    (N,) [m], and, with the filter, ``cbf_active`` / ``cbf_infeasible`` (N, H) bool and, with a speed
+    limit or a cone, ``cbf_dropped`` (N, H, 3) bool (:data:`cwh_envs.cbf_multi.BARRIERS` order).
     """
 
     states: np.ndarray
@@ -54,6 +55,7 @@ class Flight:
     min_clearance: np.ndarray | None = None
     cbf_active: np.ndarray | None = None
     cbf_infeasible: np.ndarray | None = None
+    cbf_dropped: np.ndarray | None = None
 
 
 def fly(
@@ -95,13 +97,17 @@ def fly(
     thrust = np.empty((n, horizon, 3))
     active = np.zeros((n, horizon), dtype=bool) if margin is not None else None
     infeasible = np.zeros((n, horizon), dtype=bool) if margin is not None else None
+    several = docking and (problem.speed_limit is not None or problem.approach_cone is not None)
+    dropped = np.zeros((n, horizon, 3), dtype=bool) if margin is not None and several else None
     states[:, 0] = core.states
     final = None
     for k in range(horizon):
         actions = check_actions(policy(core.observe()), (n, 3))
         if margin is not None:
-            actions, result = filter_actions(actions, core.states, problem, margin)
+            actions, result = filter_actions(actions, core.states, problem, margin, core.goals)
             active[:, k], infeasible[:, k] = result.active, result.infeasible
+            if dropped is not None:
+                dropped[:, k] = result.dropped
         thrust[:, k] = actions * problem.u_max  # exactly what the core applies
         _, _, _, final = core.step(actions)
         states[:, k + 1] = core.states
@@ -116,6 +122,7 @@ def fly(
         min_clearance=final.get("min_clearance"),
         cbf_active=active,
         cbf_infeasible=infeasible,
+        cbf_dropped=dropped,
     )
 
 

@@ -220,12 +220,17 @@ class CWHDockKOZVectorEnv(_CWHVectorEnv):
     def _filter(self, actions: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         if self.cbf_margin is None:
             return actions, {}
-        safe, result = filter_actions(actions, self._core.states, self.problem, self.cbf_margin)
-        return safe, {
+        safe, result = filter_actions(
+            actions, self._core.states, self.problem, self.cbf_margin, self._core.goals
+        )
+        info = {
             "cbf_active": np.asarray(result.active, dtype=bool),
             "cbf_infeasible": np.asarray(result.infeasible, dtype=bool),
             "cbf_correction_norm": np.asarray(result.correction_norm, dtype=np.float64),
         }
+        if hasattr(result, "dropped"):  # several barriers: (N, 3) in cwh_envs.cbf_multi.BARRIERS order
+            info["cbf_dropped"] = np.asarray(result.dropped, dtype=bool)
+        return safe, info
 
     def _initial(self, rows: np.ndarray, options: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
         num = len(rows)
@@ -259,7 +264,8 @@ def _add_masked(out: dict[str, Any], info: dict[str, Any], mask: np.ndarray) -> 
             out[key] = {}
             _add_masked(out[key], value, mask)
         else:
-            out[key] = np.where(mask, value, np.zeros((), dtype=value.dtype))
+            rows = mask.reshape(-1, *(1,) * (value.ndim - 1))  # a per-row vector, e.g. cbf_dropped (N, 3)
+            out[key] = np.where(rows, value, np.zeros((), dtype=value.dtype))
         out[f"_{key}"] = mask.copy()
 
 

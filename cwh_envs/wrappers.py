@@ -7,6 +7,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from cwh_envs.cbf_multi import BARRIERS
 from cwh_envs.core import check_actions, check_margin, filter_actions
 from cwh_envs.docking import CWHDockKOZEnv
 
@@ -36,6 +37,11 @@ class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
     | ``cbf_active``         | the barrier changed the (box-clipped) action                   |
     | ``cbf_infeasible``     | no thrust in the box satisfies the barrier this step           |
     | ``cbf_correction_norm``| ``||u - clip(u_nominal)||`` in newtons, the barrier's edit     |
+    | ``cbf_dropped``        | with a speed limit or a cone only: the barriers given up       |
+
+    With a speed limit or an approach cone every barrier goes into one QP
+    (:func:`cwh_envs.cbf_multi.safe_actions_multi`); ``cbf_infeasible`` then means that no box
+    action met them all, and ``cbf_dropped`` names what was given up (the cone first).
 
     Args:
         env: a ``CWHDockKOZ-v0`` env, possibly wrapped.
@@ -55,7 +61,9 @@ class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
 
     def action(self, action: Any) -> np.ndarray:
         base = self.env.unwrapped
-        safe, self._last = filter_actions(check_actions(action, (3,)), base.state, base.problem, self.margin)
+        safe, self._last = filter_actions(
+            check_actions(action, (3,)), base.state, base.problem, self.margin, base.goal
+        )
         return safe  # float64 on purpose: a float32 round-trip would shift the barrier's edit
 
     def step(self, action: Any):
@@ -63,4 +71,8 @@ class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
         info["cbf_active"] = bool(self._last.active)
         info["cbf_infeasible"] = bool(self._last.infeasible)
         info["cbf_correction_norm"] = float(self._last.correction_norm)
+        if hasattr(self._last, "dropped"):  # a speed limit or an approach cone: several barriers
+            info["cbf_dropped"] = tuple(
+                name for name, out in zip(BARRIERS, self._last.dropped, strict=True) if out
+            )
         return obs, reward, terminated, truncated, info
