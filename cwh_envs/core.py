@@ -363,7 +363,9 @@ class CWHEnv(gym.Env):
     core_cls: ClassVar[type[RendezvousCore]]
     reset_options: ClassVar[tuple[str, ...]]
 
-    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self, render_mode: str | None = None, dispersions: dict | None = None, **kwargs: Any
+    ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}"
@@ -379,6 +381,15 @@ class CWHEnv(gym.Env):
         )
         self._needs_reset = True
         self._trajectory: list[np.ndarray] = []
+        self._dispersed = None
+        if dispersions is not None:
+            if not isinstance(dispersions, dict):
+                raise ValueError(
+                    f"dispersions must be a dict of standard deviations or None, got {dispersions!r}"
+                )
+            from cwh_envs.dispersions import EpisodeDispersions  # it imports this module
+
+            self._dispersed = EpisodeDispersions(dispersions, self.problem.horizon)
 
     @property
     def state(self) -> np.ndarray:
@@ -395,12 +406,19 @@ class CWHEnv(gym.Env):
         self._core.start(0, state, goal)
         self._needs_reset = False
         self._trajectory = [state.copy()]
-        return self._core.observe()[0], _scalars(self._core.state_info())
+        info = _scalars(self._core.state_info())
+        if self._dispersed is None:
+            return self._core.observe()[0], info
+        info["dispersion"] = self._dispersed.reset(seed)
+        return self._dispersed.observe(self._core.observe()[0], 0), info
 
     def step(self, action: Any):
         if self._needs_reset:
             raise RuntimeError("call reset() before step(): the episode has not started or has ended")
-        reward, terminated, info, final = self._core.step(check_actions(action, (3,))[None])
+        action = check_actions(action, (3,))
+        if self._dispersed is not None:  # the plant's errors act before the box clip, as a thruster's would
+            action = np.clip(self._dispersed.plant(action), -1.0, 1.0)
+        reward, terminated, info, final = self._core.step(action[None])
         info = _scalars(info)
         done = bool(terminated[0])
         if done:
@@ -408,7 +426,10 @@ class CWHEnv(gym.Env):
             self._needs_reset = True
         if self.render_mode is not None:
             self._trajectory.append(self.state)
-        return self._core.observe()[0], float(reward[0]), done, False, info
+        obs = self._core.observe()[0]
+        if self._dispersed is not None:
+            obs = self._dispersed.observe(obs, int(self._core.steps[0]))
+        return obs, float(reward[0]), done, False, info
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:

@@ -29,6 +29,7 @@ from cwh_envs.core import (
     check_states,
     filter_actions,
 )
+from cwh_envs.dispersions import check_spreads, draw_episode, episode_rng, noisy
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -43,6 +44,8 @@ class Flight:
     None): ``violation_rate`` (N,) share of steps 1..H ending inside the keep-out, ``min_clearance``
     (N,) [m], and, with the filter, ``cbf_active`` / ``cbf_infeasible`` (N, H) bool and, with a speed
     limit or a cone, ``cbf_dropped`` (N, H, 3) bool (:data:`cwh_envs.cbf_multi.BARRIERS` order).
+    ``speed_violation_rate`` / ``cone_violation_rate`` (N,): the share of steps 1..H breaking the
+    speed limit / the cone, on a problem that has it (else None).
     """
 
     states: np.ndarray
@@ -56,6 +59,8 @@ class Flight:
     cbf_active: np.ndarray | None = None
     cbf_infeasible: np.ndarray | None = None
     cbf_dropped: np.ndarray | None = None
+    speed_violation_rate: np.ndarray | None = None
+    cone_violation_rate: np.ndarray | None = None
 
 
 def fly(
@@ -65,11 +70,18 @@ def fly(
     goals=None,
     *,
     cbf_margin: float | None = None,
+    dispersions: dict | None = None,
+    dispersion_seed: int = 0,
 ) -> Flight:
     """Fly ``policy`` from every start (N, 6) at once (docking: to ``goals`` (N, 3)) for H steps.
 
     ``cbf_margin`` (docking, metres) passes every action through the predictive CBF filter first,
     as ``CBFSafetyFilter(env, margin=cbf_margin)`` does.
+
+    ``dispersions`` (standard deviations, :mod:`cwh_envs.dispersions`) flies start ``i`` under the
+    draw of seed ``dispersion_seed + i``, as ``CBFSafetyFilter(Dispersions(env))`` reset with that
+    seed would: the policy sees the navigation noise, the filter the true state, and the plant's
+    errors act on the filtered action before the box clip; ``thrust`` is then the effective thrust.
     """
     docking = isinstance(problem, DockingProblem)
     if not docking and not isinstance(problem, RendezvousProblem):
@@ -92,6 +104,11 @@ def fly(
         core = RendezvousCore(problem, RendezvousReward(), n)
     margin = None if cbf_margin is None else check_margin(cbf_margin)
     horizon = problem.horizon
+    gains = nav = None
+    if dispersions is not None:
+        spreads = check_spreads(dispersions)
+        draws = [draw_episode(spreads, episode_rng(dispersion_seed + i), horizon) for i in range(n)]
+        gains, nav = np.stack([d.gain for d in draws]), np.stack([d.nav for d in draws])
     core.start(slice(None), starts, goals)
     states = np.empty((n, horizon + 1, 6))
     thrust = np.empty((n, horizon, 3))
@@ -102,12 +119,15 @@ def fly(
     states[:, 0] = core.states
     final = None
     for k in range(horizon):
-        actions = check_actions(policy(core.observe()), (n, 3))
+        observed = core.observe() if nav is None else noisy(core.observe(), nav[:, k])
+        actions = check_actions(policy(observed), (n, 3))
         if margin is not None:
             actions, result = filter_actions(actions, core.states, problem, margin, core.goals)
             active[:, k], infeasible[:, k] = result.active, result.infeasible
             if dropped is not None:
                 dropped[:, k] = result.dropped
+        if gains is not None:
+            actions = np.clip(np.einsum("nij,nj->ni", gains, actions), -1.0, 1.0)
         thrust[:, k] = actions * problem.u_max  # exactly what the core applies
         _, _, _, final = core.step(actions)
         states[:, k + 1] = core.states
@@ -120,6 +140,8 @@ def fly(
         is_success=final["is_success"],
         violation_rate=final.get("violation_rate"),
         min_clearance=final.get("min_clearance"),
+        speed_violation_rate=final.get("speed_violation_rate"),
+        cone_violation_rate=final.get("cone_violation_rate"),
         cbf_active=active,
         cbf_infeasible=infeasible,
         cbf_dropped=dropped,

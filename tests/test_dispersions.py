@@ -85,3 +85,40 @@ def test_navigation_noise_is_on_the_observation_only():
 def test_bad_spreads_are_refused(bad):
     with pytest.raises(ValueError, match="must"):
         Dispersions(gym.make("CWHDockKOZ-v0"), **bad)
+
+
+@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v0"])
+def test_the_env_option_is_the_wrapper(env_id):
+    actions = np.random.default_rng(2).uniform(-1, 1, (25, 3)).astype(np.float32)
+    wrapped = run(Dispersions(gym.make(env_id), **ALL), 11, actions)
+    option = run(gym.make(env_id, dispersions=ALL), 11, actions)
+    assert wrapped[0]["dispersion"] == option[0]["dispersion"]
+    np.testing.assert_array_equal(wrapped[1], option[1])
+    np.testing.assert_array_equal(wrapped[2], option[2])
+    with pytest.raises(ValueError, match="unknown dispersion"):
+        gym.make(env_id, dispersions={"thrust": 0.1})
+
+
+def test_fly_draws_what_the_wrapped_env_draws_start_by_start():
+    from cwh_envs.controllers import pd_action
+    from cwh_envs.datasets import start_pool
+    from cwh_envs.problems import DockingProblem
+    from cwh_envs.rollout import fly
+    from cwh_envs.wrappers import CBFSafetyFilter
+
+    problem = DockingProblem()
+    pool = start_pool("docking", 4, problem)
+    law = lambda obs: pd_action(obs, problem)  # noqa: E731
+    flight = fly(problem, law, pool.starts, pool.goals, cbf_margin=0.5, dispersions=ALL, dispersion_seed=40)
+    nominal = fly(problem, law, pool.starts, pool.goals, cbf_margin=0.5)
+    for i in range(4):
+        env = CBFSafetyFilter(Dispersions(gym.make("CWHDockKOZ-v0"), **ALL))
+        obs, _ = env.reset(seed=40 + i, options={"initial_state": pool.starts[i], "goal": pool.goals[i]})
+        states = [env.unwrapped.state]
+        done = False
+        while not done:
+            obs, _, done, truncated, _ = env.step(law(obs[None])[0])
+            states.append(env.unwrapped.state)
+            done = done or truncated
+        np.testing.assert_array_equal(np.array(states), flight.states[i])
+    assert np.abs(flight.terminal_distance - nominal.terminal_distance).max() > 0

@@ -145,6 +145,12 @@ def test_train_prints_one_final_metric_appends_one_line_and_is_deterministic(nam
         assert field in first
     if name == "docking":
         assert {"violation_rate", "min_clearance", "strict_feasible"} <= set(first)
+        # The Monte Carlo auxiliary: the same policy under the family's dispersion set, beside the score.
+        dispersed = first["dispersed"]
+        assert {"success_rate", "violation_rate", "violating_starts", "mean_terminal_distance"} < set(
+            dispersed
+        )
+        assert dispersed["mean_terminal_distance"] != first["mean_terminal_distance"]
     assert first["eval_split"] == "search" and "test_split" not in first["datasets"]
     assert {"effort_ratio", "delta_v_ratio", "mean_delta_v"} <= set(first)
 

@@ -18,7 +18,9 @@ search split's metrics of the same policy under ``search_split``. The run ends w
 prints ``PROGRESS: {"step": epoch, METRIC: value}``, the metric on the first 16 search starts, so
 that ``autoresearch loop --early-stop`` can stop a hopeless run. Fuel is logged, never
 optimised: ``effort_ratio`` (sum of |u|^2 dt, the quantity the expert minimises) and
-``delta_v_ratio`` over the expert's own from the same starts.
+``delta_v_ratio`` over the expert's own from the same starts. ``dispersed`` is the Monte Carlo
+auxiliary: success and violation rates of the same policy on the same starts under DISPERSIONS
+(thrust, mass and navigation errors; cwh_envs.dispersions); it never enters the score.
 """
 
 from __future__ import annotations
@@ -68,6 +70,10 @@ POOL_RECOVERY = round(MAX_RECOVERY_FRAC * POOL_DEMOS)  # recovery trajectories: 
 N_EVAL = 128  # held-out, screened far-side evaluation starts: the search split
 N_TEST = 1024  # the sealed test split, screened alike (--eval-split test)
 N_PROGRESS = 16  # search starts behind each PROGRESS line: a cheap proxy of the metric
+# The Monte Carlo auxiliary's fixed dispersion set (standard deviations; cwh_envs.dispersions):
+# 2 % thrust magnitude, 1 degree misalignment, 2 % mass, 0.05 m and 0.5 mm/s navigation noise.
+DISPERSIONS = dict(thrust_scale=0.02, misalignment_deg=1.0, mass=0.02, nav_position=0.05, nav_velocity=5e-4)
+DISPERSION_SEED = 0  # episode i of a split draws its dispersions from seed DISPERSION_SEED + i
 PROGRESS_POINTS = 4  # PROGRESS lines per run, at evenly spaced epochs (the last one included)
 DATA_SEED = 0  # the pools do not move with --seed; the seed varies only initialisation and batching
 TORCH_THREADS = 1  # fixed: reproducible on any host, and the audit runs two trainings on two cores
@@ -233,10 +239,19 @@ def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.devi
     return policy.eval(), best_loss
 
 
-def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool) -> Flight:
+def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool, dispersions=None) -> Flight:
     """Every start flown at once through the env's own batched core; no expert in the loop. With
-    ``cbf`` every action passes the two-step predictive CBF filter (margin PROBLEM.margin) first."""
-    return fly_policy(PROBLEM, policy.act, starts, goals, cbf_margin=PROBLEM.margin if cbf else None)
+    ``cbf`` every action passes the two-step predictive CBF filter (margin PROBLEM.margin) first;
+    with ``dispersions`` start i flies under the draw of seed DISPERSION_SEED + i."""
+    return fly_policy(
+        PROBLEM,
+        policy.act,
+        starts,
+        goals,
+        cbf_margin=PROBLEM.margin if cbf else None,
+        dispersions=dispersions,
+        dispersion_seed=DISPERSION_SEED,
+    )
 
 
 def docking_metrics(flight: Flight, expert_thrust: np.ndarray) -> dict:
@@ -278,10 +293,27 @@ def docking_metrics(flight: Flight, expert_thrust: np.ndarray) -> dict:
     return metrics
 
 
-def evaluate(policy: Policy, held_out: Demonstrations, cbf: bool) -> dict:
-    """The metrics of ``policy`` on an evaluation split (cwh_envs.datasets.evaluation_set)."""
+def dispersed_metrics(flight: Flight) -> dict:
+    """The Monte Carlo auxiliary: how the policy fares under DISPERSIONS (never in the score)."""
+    return {
+        "dispersions": DISPERSIONS,
+        "success_rate": float(flight.is_success.mean()),
+        "violation_rate": float(flight.violation_rate.mean()),
+        "violating_starts": int((flight.violation_rate > 0).sum()),
+        "mean_terminal_distance": float(flight.terminal_distance.mean()),
+    }
+
+
+def evaluate(policy: Policy, held_out: Demonstrations, cbf: bool, dispersed: bool = True) -> dict:
+    """The metrics of ``policy`` on an evaluation split (cwh_envs.datasets.evaluation_set), with the
+    Monte Carlo auxiliary under ``dispersed`` unless it is False."""
     flight = fly(policy, held_out.starts, held_out.goals, cbf)
-    return docking_metrics(flight, held_out.trajectory_thrust())
+    metrics = docking_metrics(flight, held_out.trajectory_thrust())
+    if dispersed:
+        metrics["dispersed"] = dispersed_metrics(
+            fly(policy, held_out.starts, held_out.goals, cbf, DISPERSIONS)
+        )
+    return metrics
 
 
 def append_record(path: Path, record: dict) -> None:
@@ -319,7 +351,7 @@ def main() -> None:
     first = search.take(N_PROGRESS)
 
     def report(epoch: int, policy: Policy) -> None:
-        value = evaluate(policy, first, cbf)[METRIC]
+        value = evaluate(policy, first, cbf, dispersed=False)[METRIC]
         print("PROGRESS: " + json.dumps({"step": epoch, METRIC: value}, allow_nan=False), flush=True)
 
     started = time.perf_counter()
