@@ -1,0 +1,67 @@
+"""Export a trained docking policy to ONNX: the file that flies, with the CBF setting it flew with.
+
+    python families/docking/export.py --policy OUT_DIR_OR_policy.pt --onnx policy.onnx
+
+The policy is restored by this family's own train.py (``load_policy``); the graph takes the
+observation [r, v, g, tau] (N, 10) float32 as the env shows it, standardises it inside, and returns
+the env action, thrust / u_max clipped to [-1, 1] (N, 3), exactly as ``Policy.act``. The run-time
+CBF filter is not in the graph: it stays ``cwh_envs.cbf.safe_actions``, applied to the actions
+outside it, and the file's metadata says whether the recipe had it on (``runtime_cbf_filter``,
+``cbf_margin``), with the task, the problem constants and the recipe. Before writing, the file is
+checked against the torch policy on 1024 observations; one summary line is printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import torch
+import train
+
+from cwh_envs.onnx_policy import export_checked
+
+ENV_ID = "CWHDockKOZ-v0"
+CHECK_ROWS = 1024  # observations the exported file is compared with the torch policy on
+CHECK_TOLERANCE = 1e-5  # largest |action difference| accepted (actions lie in [-1, 1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--policy", type=Path, required=True, help="a train.py --out directory or its policy.pt"
+    )
+    parser.add_argument("--onnx", type=Path, required=True, help="the ONNX file to write")
+    args = parser.parse_args()
+    torch.set_num_threads(train.TORCH_THREADS)
+    policy, saved = train.load_policy(args.policy)
+    if saved["task"] != train.TASK:
+        raise SystemExit(f"export.py: {args.policy} holds a {saved['task']} policy, not {train.TASK}")
+    cbf = bool(saved["config"]["RUNTIME_CBF_FILTER"])
+    source = args.policy / "policy.pt" if args.policy.is_dir() else args.policy
+    metadata = {
+        "task": train.TASK,
+        "env_id": ENV_ID,
+        "observation": "[r (3), v (3), g (3), tau] float32 (N, 10), as the env shows it; standardised in the graph",
+        "action": "thrust / u_max per axis, clipped to [-1, 1], float32 (N, 3), as the env takes it",
+        "runtime_cbf_filter": cbf,
+        "cbf_margin": train.PROBLEM.margin if cbf else None,
+        "cbf": "not in the graph: cwh_envs.cbf.safe_actions on the actions, as cwh_envs.rollout.fly(cbf_margin=...)",
+        "problem": train.PROBLEM.as_dict(),
+        "metric": train.METRIC,
+        "config": saved["config"],
+        "record": {key: saved["record"].get(key) for key in ("run_id", "seed", train.METRIC, "eval_split")},
+    }
+    try:
+        summary = export_checked(
+            policy, args.onnx, metadata, source, rows=CHECK_ROWS, tolerance=CHECK_TOLERANCE
+        )
+    except ValueError as err:
+        raise SystemExit(f"export.py: {err}") from None
+    print("EXPORTED: " + json.dumps(summary), flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,34 @@
+"""Build (--warm-cache) or verify (--check) every data set this family's train.py can read.
+
+    python prepare.py --warm-cache   # once, slow: expert solves for the whole pool
+    python prepare.py --check        # seconds: exit 1 naming whatever is missing or inconsistent
+
+The sets are stated here from train.py's own constants (so the two cannot disagree);
+cwh_envs.prepare builds and verifies them.
+"""
+
+import sys
+
+try:
+    import train  # this directory's train.py: its constants (its run is guarded by __main__)
+except ModuleNotFoundError as err:  # the base install has no torch: say which extra brings it
+    if err.name != "torch":
+        raise
+    sys.exit(
+        "this family trains with torch, which is not installed: pip install 'cwh-autoresearch[families]'"
+    )
+
+from cwh_envs.prepare import DataNeeds, main
+
+NEEDS = DataNeeds(
+    task=train.TASK,
+    problem=train.PROBLEM,
+    pool_demos=train.POOL_DEMOS,
+    data_seed=train.DATA_SEED,
+    n_eval=train.N_EVAL,
+    n_test=train.N_TEST,
+    obs_dim=train.OBS_DIM,
+)
+
+if __name__ == "__main__":
+    sys.exit(main(NEEDS, __doc__))

@@ -1,0 +1,82 @@
+"""Issue 28, item 5: the third family, families/docking-constrained, follows the family contract.
+
+Its data take the constrained expert minutes to build, so the end-to-end evidence is the committed
+campaign (results/docking-constrained); these tests hold the contract and the family's scoring on
+real flights without building any data.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autoresearch.family import Family, family_problems
+from cwh_envs.datasets import start_pool
+
+ROOT = Path(__file__).resolve().parents[1]
+FAMILY = ROOT / "families" / "docking-constrained"
+
+
+def test_the_family_passes_the_contract_check():
+    assert family_problems(FAMILY) == []
+    family = Family.load(FAMILY)
+    assert family.name == "docking-constrained" and family.has_test_split
+    assert "RECOVERY_AUGMENT_FRAC" not in family.baseline_config
+
+
+@pytest.mark.needs("families")
+def test_prepare_check_names_the_missing_sets_and_builds_nothing(tmp_path):
+    cache = tmp_path / "cache"
+    env = {**os.environ, "CWH_ENVS_CACHE": str(cache), "OMP_NUM_THREADS": "1"}
+    cold = subprocess.run(
+        [sys.executable, "prepare.py", "--check"],
+        cwd=FAMILY,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert cold.returncode != 0
+    assert all(part in cold.stderr for part in ("training pool", "search split", "test split", "missing"))
+    assert "recovery pool" not in cold.stderr
+    assert not cache.exists() or not any(cache.iterdir())
+
+
+@pytest.fixture(scope="module")
+def train():
+    spec = importlib.util.spec_from_file_location("train_constrained_under_test", FAMILY / "train.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.needs("families")
+def test_the_score_counts_every_constraint_and_the_gate_covers_them(train):
+    pool = start_pool("docking", 6, train.PROBLEM)
+    config = {name: getattr(train, name) for name in train.CONFIG_NAMES}
+    torch_policy = train.build_policy(config)  # an untrained network: it drifts, and breaks things
+    flight = train.fly(torch_policy, pool.starts, pool.goals, cbf=True)
+    metrics = train.docking_metrics(flight, flight.thrust)
+    rates = metrics["violation_rates"]
+    expected = (
+        flight.terminal_distance.mean()
+        + train.VIOLATION_WEIGHT
+        * (flight.violation_rate + flight.speed_violation_rate + flight.cone_violation_rate).mean()
+    )
+    assert metrics[train.METRIC] == pytest.approx(expected, rel=1e-12)
+    assert rates["keep_out"] == 0.0  # the filter keeps it first
+    assert metrics["constraints"]["speed_violation_rate"] == rates["speed"]
+    assert metrics["constraints"]["cone_violation_rate"] == rates["cone"]
+    assert not metrics["strict_feasible"] and metrics["effort_ratio"] == pytest.approx(1.0)
+    dispersed = train.dispersed_metrics(
+        train.fly(torch_policy, pool.starts, pool.goals, True, train.DISPERSIONS)
+    )
+    assert dispersed["dispersions"] == train.DISPERSIONS
+    assert dispersed["mean_terminal_distance"] != metrics["mean_terminal_distance"]
+    assert np.isfinite(dispersed["violation_rate"])
