@@ -122,3 +122,9 @@ def test_fly_draws_what_the_wrapped_env_draws_start_by_start():
             done = done or truncated
         np.testing.assert_array_equal(np.array(states), flight.states[i])
     assert np.abs(flight.terminal_distance - nominal.terminal_distance).max() > 0
+
+
+def test_the_dispersed_env_passes_gymnasiums_checker():
+    from gymnasium.utils.env_checker import check_env
+
+    check_env(gym.make("CWHDockKOZ-v0", dispersions=ALL).unwrapped, skip_render_check=True)
