@@ -97,7 +97,7 @@ class SlowProposer(ScriptedProposer):
 def test_wall_clock(toy, tmp_path):
     script = [{"EPOCHS": e} for e in range(11, 30)]
     _, records = run_loop(toy, SlowProposer(script), tmp_path / "c", max_seconds=0.5)
-    assert records[-1]["trigger"] == "wall_clock" and records[-1]["elapsed_s"] > 0.5
+    assert records[-1]["trigger"] == "wall_clock" and records[-1]["elapsed_s"] >= 0.5  # rounded to ms
     assert 2 <= len(records) <= 5
 
 
