@@ -90,8 +90,8 @@ def qp_row(name: str, u0, rows, rhs, applies) -> tuple[str, float]:
     reference, solved = proxsuite_qps(u0, rows, rhs, applies, 1e-12)
     gap = np.max(np.abs(u - reference)[feasible & solved])
     f = feasible
-    ours = best_of(20, lambda: project_polytope_box(u0[f], rows[f], rhs[f], applies[f], U_MAX))
-    theirs = best_of(3, lambda: proxsuite_qps(u0[f], rows[f], rhs[f], applies[f], 1e-9))
+    ours = best_of(200, lambda: project_polytope_box(u0[f], rows[f], rhs[f], applies[f], U_MAX))
+    theirs = best_of(5, lambda: proxsuite_qps(u0[f], rows[f], rhs[f], applies[f], 1e-9))
     n = int(f.sum())
     row = (
         f"| {name} | {len(u0)} | {np.mean(~feasible):.2f} | {np.mean(feasible == solved):.4f} | {gap:.1e} | "
@@ -131,7 +131,7 @@ def main() -> None:
     row, per_qp = qp_row("the filter's own, on PD-flight states", nominal, own_rows, own_rhs, own_applies)
     print(row)
 
-    whole = best_of(10, lambda: safe_actions_multi(nominal, states, at, a, b, u_max=U_MAX, **KWARGS))
+    whole = best_of(50, lambda: safe_actions_multi(nominal, states, at, a, b, u_max=U_MAX, **KWARGS))
     print(
         "\n| whole filter (re-linearisation and fallbacks included) | actions/s | vs one proxsuite QP per action |"
     )

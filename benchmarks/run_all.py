@@ -72,6 +72,7 @@ PARALLEL_LOG = "results/logs/bench_loop_parallel.txt"  # bench_loop_parallel.py'
 SB3_LOG = "results/logs/bench_sb3.txt"  # bench_sb3.py's committed output
 EVALUATION_LOG = "results/logs/bench_evaluation.txt"  # bench_evaluation.py's committed output
 INSTALL_LOG = "results/logs/bench_install.txt"  # bench_install.py's committed output
+CBF_MULTI_LOG = "results/logs/bench_cbf_multi.txt"  # bench_cbf_multi.py's committed output
 RAY_LOG = "results/logs/bench_ray_scaling.txt"  # bench_ray_scaling.py's committed output
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
@@ -375,6 +376,36 @@ def install_rows() -> list[Row]:
     return [(what, value, comparison, f"from {INSTALL_LOG}") for what, value, comparison in cells]
 
 
+def cbf_multi_rows() -> list[Row]:
+    """The multi-constraint CBF QP against proxsuite and the whole filter's throughput, from
+    bench_cbf_multi.py's committed output (nothing is run)."""
+    log = ROOT / CBF_MULTI_LOG
+    what = "multi-constraint CBF QP/s, exact batched vs one proxsuite QP"
+    if not log.is_file():
+        return [(what, "not run", "", f"benchmarks/bench_cbf_multi.py > {CBF_MULTI_LOG}")]
+    text = log.read_text(encoding="utf-8")
+    qps = [
+        (
+            f"{what}, {cells[0]} instances",
+            f"{cells[5]} vs {cells[6]}",
+            f"{cells[7]} (target >= 50x)",
+            f"max gap {cells[4]} N; {CBF_MULTI_LOG}",
+        )
+        for cells in table_cells(text, "")
+        if len(cells) == 8 and cells[0].startswith(("random", "the filter"))
+    ]
+    whole = [
+        (
+            f"multi-constraint CBF, whole filter: actions/s, {name}",
+            actions,
+            f"{ratio} one proxsuite QP",
+            CBF_MULTI_LOG,
+        )
+        for name, actions, ratio in table_cells(text, "safe_actions_multi")
+    ]
+    return qps + whole
+
+
 def ray_rows() -> list[Row]:
     """Campaign and audit wall time against Ray workers, and Ray's overhead per run, from
     bench_ray_scaling.py's committed output (it starts a Ray instance per worker count)."""
@@ -554,7 +585,7 @@ def main() -> int:
         rows += compare_rows()
         rows += early_stop_rows()
         rows += evidence_rows()
-        rows += sb3_rows() + evaluation_rows() + install_rows() + ray_rows()
+        rows += sb3_rows() + evaluation_rows() + install_rows() + cbf_multi_rows() + ray_rows()
         rows.append(main_job_row())
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"

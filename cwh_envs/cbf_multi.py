@@ -130,7 +130,7 @@ def project_polytope_box(u0, g_rows, h, applies, u_max):
     :func:`barrier_rows` gives them. Returns ``u`` (N, 3)
     and ``feasible`` (N,); where infeasible ``u`` is ``clip(u0)`` (the caller decides what to do).
     """
-    norms = np.linalg.norm(g_rows, axis=2)
+    norms = np.sqrt(np.sum(g_rows**2, axis=2))
     live = applies & (norms > 0.0)
     # A zero row applies as 0 >= h: always met where h <= 0, never where h > 0.
     hopeless = np.any(applies & (norms == 0.0) & (h > 0.0), axis=1)
@@ -143,19 +143,14 @@ def project_polytope_box(u0, g_rows, h, applies, u_max):
     idx = np.flatnonzero(feasible & violated.any(axis=1))
     if not len(idx):
         return u, feasible
-    # Stage 2: a relaxation to one violated barrier; any that meets the others is the answer.
-    solved = np.zeros(len(idx), dtype=bool)
-    impossible = np.zeros(len(idx), dtype=bool)  # one barrier alone has no box action
-    for i in range(3):
-        on = np.flatnonzero(violated[idx, i] & ~solved)
-        if not len(on):
-            continue
-        sub = idx[on]
-        relaxed = project_halfspace_box(u0[sub], rows[sub, i], rhs[sub, i], u_max)
-        impossible[on] |= relaxed.infeasible
-        ok = ~relaxed.infeasible & _meets(relaxed.u, rows[sub], rhs[sub])
-        u[sub[ok]] = relaxed.u[ok]
-        solved[on[ok]] = True
+    # Stage 2: a relaxation to each violated barrier, all in one call; one that meets the others wins.
+    rows_at, barrier = np.nonzero(violated[idx])  # one pair per (instance left, violated barrier)
+    sub = idx[rows_at]
+    relaxed = project_halfspace_box(u0[sub], rows[sub, barrier], rhs[sub, barrier], u_max)
+    ok = ~relaxed.infeasible & _meets(relaxed.u, rows[sub], rhs[sub])
+    u[sub[ok]] = relaxed.u[ok]  # several may meet them all: each is the one minimiser
+    solved = np.bincount(rows_at[ok], minlength=len(idx)) > 0
+    impossible = np.bincount(rows_at[relaxed.infeasible], minlength=len(idx)) > 0  # no box action at all
     feasible[idx[impossible]] = False
     rest = idx[~solved & ~impossible]
     if len(rest):  # stage 3: two or three barriers active
@@ -172,7 +167,7 @@ def _meets(u, rows, rhs) -> np.ndarray:
     return np.all(_products(rows, u) >= rhs - FEASIBILITY_TOLERANCE, axis=1)
 
 
-PAIRS = ((0, 1), (0, 2), (1, 2))
+FIRST, SECOND = np.array([0, 0, 1]), np.array([1, 2, 2])  # the three pairs of barrier rows
 
 
 def _enumerate(u0, rows, rhs, u_max):
@@ -181,37 +176,38 @@ def _enumerate(u0, rows, rhs, u_max):
     with any bound active), and the vertex where all three meet. The minimiser is among them."""
     usable = np.isfinite(rhs)
     targets = np.where(usable, rhs, 0.0)
-    candidates, valid = [], []
-    for i, j in PAIRS:
-        c1, c2 = rows[:, i], rows[:, j]
-        s1, s2 = targets[:, i] - _dot(c1, u0), targets[:, j] - _dot(c2, u0)
-        q = _dot(c1, c2)
-        det = 1.0 - q**2  # Gram determinant of the two unit rows
-        ok = (det > DEGENERATE) & usable[:, i] & usable[:, j]
-        det = np.where(ok, det, 1.0)
-        foot = u0 + ((s1 - q * s2) / det)[:, None] * c1 + ((s2 - q * s1) / det)[:, None] * c2
-        along = _cross(c1, c2)
-        along /= np.where(ok, np.linalg.norm(along, axis=1), 1.0)[:, None]
-        # The line foot + t along meets the box on [low, high]; |u - u0| grows with |t|.
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ends = np.stack([-u_max - foot, u_max - foot]) / along  # (2, n, 3)
-        flat = along == 0.0
-        low = np.where(flat, np.where(np.abs(foot) <= u_max, -np.inf, np.inf), ends.min(axis=0)).max(axis=1)
-        high = np.where(flat, np.where(np.abs(foot) <= u_max, np.inf, -np.inf), ends.max(axis=0)).min(axis=1)
-        ok &= low <= high
-        candidates.append(foot + np.where(ok, np.clip(0.0, low, high), 0.0)[:, None] * along)
-        valid.append(ok)
-    c1, c2, c3 = rows[:, 0], rows[:, 1], rows[:, 2]
-    cross23, cross31, cross12 = _cross(c2, c3), _cross(c3, c1), _cross(c1, c2)
-    volume = _dot(c1, cross23)
-    ok = (np.abs(volume) > DEGENERATE) & np.all(usable, axis=1)
-    volume = np.where(ok, volume, 1.0)
+    # The three pairs at once, (n, 3 pairs, 3): unit rows c1, c2; u = u0 + y1 c1 + y2 c2 on both.
+    c1, c2 = rows[:, FIRST], rows[:, SECOND]
+    s1 = targets[:, FIRST] - _dot(c1, u0[:, None])
+    s2 = targets[:, SECOND] - _dot(c2, u0[:, None])
+    q = _dot(c1, c2)
+    det = 1.0 - q**2  # Gram determinant of the two unit rows
+    pair_ok = (det > DEGENERATE) & usable[:, FIRST] & usable[:, SECOND]
+    det = np.where(pair_ok, det, 1.0)
+    foot = u0[:, None] + ((s1 - q * s2) / det)[..., None] * c1 + ((s2 - q * s1) / det)[..., None] * c2
+    along = _cross(c1, c2)
+    along /= np.where(pair_ok, np.sqrt(_dot(along, along)), 1.0)[..., None]
+    # The line foot + t along meets the box on [low, high]; |u - u0| grows with |t|.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        to_low, to_high = (-u_max - foot) / along, (u_max - foot) / along  # (n, 3 pairs, 3 axes)
+    flat = along == 0.0
+    inside = np.abs(foot) <= u_max
+    low = np.where(flat, np.where(inside, -np.inf, np.inf), np.minimum(to_low, to_high)).max(axis=2)
+    high = np.where(flat, np.where(inside, np.inf, -np.inf), np.maximum(to_low, to_high)).min(axis=2)
+    pair_ok &= low <= high
+    lines = foot + np.where(pair_ok, np.clip(0.0, low, high), 0.0)[..., None] * along
+    # The vertex of all three, by Cramer's rule with cross products.
+    r1, r2, r3 = rows[:, 0], rows[:, 1], rows[:, 2]
+    cross23, cross31, cross12 = _cross(r2, r3), _cross(r3, r1), _cross(r1, r2)
+    volume = _dot(r1, cross23)
+    vertex_ok = (np.abs(volume) > DEGENERATE) & np.all(usable, axis=1)
+    volume = np.where(vertex_ok, volume, 1.0)
     vertex = (targets[:, :1] * cross23 + targets[:, 1:2] * cross31 + targets[:, 2:3] * cross12) / volume[
         :, None
     ]
-    candidates.append(vertex)
-    valid.append(ok & np.all(np.abs(vertex) <= u_max + FEASIBILITY_TOLERANCE, axis=1))
-    candidates, valid = np.stack(candidates, axis=1), np.stack(valid, axis=1)  # (n, 4, 3), (n, 4)
+    vertex_ok &= np.all(np.abs(vertex) <= u_max + FEASIBILITY_TOLERANCE, axis=1)
+    candidates = np.concatenate([lines, vertex[:, None]], axis=1)  # (n, 4, 3)
+    valid = np.concatenate([pair_ok, vertex_ok[:, None]], axis=1)
     slack = np.matmul(candidates, rows.transpose(0, 2, 1)) - rhs[:, None, :]  # (n, 4, 3)
     valid &= np.all(slack >= -FEASIBILITY_TOLERANCE, axis=2)
     cost = np.where(valid, np.sum((candidates - u0[:, None]) ** 2, axis=2), np.inf)
@@ -223,17 +219,17 @@ def _enumerate(u0, rows, rhs, u_max):
 
 
 def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    return x[:, 0] * y[:, 0] + x[:, 1] * y[:, 1] + x[:, 2] * y[:, 2]
+    return x[..., 0] * y[..., 0] + x[..., 1] * y[..., 1] + x[..., 2] * y[..., 2]
 
 
 def _cross(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.stack(
         [
-            x[:, 1] * y[:, 2] - x[:, 2] * y[:, 1],
-            x[:, 2] * y[:, 0] - x[:, 0] * y[:, 2],
-            x[:, 0] * y[:, 1] - x[:, 1] * y[:, 0],
+            x[..., 1] * y[..., 2] - x[..., 2] * y[..., 1],
+            x[..., 2] * y[..., 0] - x[..., 0] * y[..., 2],
+            x[..., 0] * y[..., 1] - x[..., 1] * y[..., 0],
         ],
-        axis=1,
+        axis=-1,
     )
 
 

@@ -195,3 +195,23 @@ def test_evidence_rows_read_the_committed_campaigns():
     for what, measured, verdict, note in rows:
         assert "gp over" in what and measured.startswith("target ") and "reseeded" in verdict
         assert note.endswith(tuple(run_all.EVIDENCE_CAMPAIGNS))
+
+
+def test_cbf_multi_rows_read_the_committed_table(tmp_path, monkeypatch):
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    assert run_all.cbf_multi_rows()[0][1] == "not run"
+    (tmp_path / "results" / "logs").mkdir(parents=True)
+    (tmp_path / "results" / "logs" / "bench_cbf_multi.txt").write_text(
+        "Python 3.11\n\n| QP instances | n | infeasible | feasibility agrees | max abs u gap [N] | exact | prox | x |\n"
+        "|---|---|---|---|---|---|---|---|\n"
+        "| random (three rows) | 1024 | 0.18 | 1.0000 | 5.1e-12 | 700,000 | 14,000 | 50x |\n"
+        "| the filter's own, on PD-flight states | 1024 | 0.31 | 1.0000 | 7.0e-12 | 900,000 | 15,000 | 60x |\n\n"
+        "| whole filter | actions/s | vs one proxsuite QP per action |\n|---|---|---|\n"
+        "| safe_actions_multi, 1024 PD-flight states | 100,000 | 5.0x |\n"
+        "\n| PD law + multi-constraint CBF, 128 starts | starts that break it | steps broken | gave up |\n"
+        "| keep-out | 0.0% | 0.0% | never |\n"
+    )
+    random, own, whole = run_all.cbf_multi_rows()
+    assert random[1:3] == ("700,000 vs 14,000", "50x (target >= 50x)") and "5.1e-12" in random[3]
+    assert own[0].endswith("the filter's own, on PD-flight states instances") and own[2].startswith("60x")
+    assert whole[1:3] == ("100,000", "5.0x one proxsuite QP")
