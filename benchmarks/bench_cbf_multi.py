@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import os
 import platform
-import time
 
 import numpy as np
+from bench_experts_cbf import best_of  # a sibling script: benchmarks/ is on the path
 from proxsuite import proxqp
 
 from cwh_envs.cbf_multi import barrier_rows, project_polytope_box, safe_actions_multi
@@ -72,15 +72,6 @@ def proxsuite_qps(u0, rows, rhs, applies, eps: float) -> tuple[np.ndarray, np.nd
         qp.solve()
         x[i], solved[i] = qp.results.x, qp.results.info.status == proxqp.QPSolverOutput.PROXQP_SOLVED
     return x, solved
-
-
-def best_of(repeats: int, function) -> float:
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - started)
-    return min(times)
 
 
 def qp_row(name: str, u0, rows, rhs, applies) -> tuple[str, float]:
