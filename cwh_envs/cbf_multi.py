@@ -251,31 +251,26 @@ def _linearised(u0, states, goals, a, b, dropped, u_max, terms):
         todo = todo[moved]
         if not len(todo):
             break
-    return u, feasible & ~np.any(_broken(states, goals, u, a, b, terms) & ~dropped, axis=1)
+    return u, feasible & ~np.any(_held(states, goals, u, a, b, terms)[1] & ~dropped, axis=1)
 
 
-def _broken(states, goals, u, a, b, terms) -> np.ndarray:
-    """(N, 3) bool: the held action ``u`` breaks the speed limit at ``x_{t+1}``, the cone at
-    ``x_{t+2}`` (beyond SPEED_TOLERANCE, CONE_SLACK); the keep-out column is False (its row is exact)."""
-    out = np.zeros((len(u), 3), dtype=bool)
+def _held(states, goals, u, a, b, terms) -> tuple[np.ndarray, np.ndarray]:
+    """Which barriers apply to the held action ``u`` and which it breaks, each (N, 3) bool, from the
+    exact prediction: the speed limit at ``x_{t+1}`` (beyond SPEED_TOLERANCE), the cone at ``x_{t+2}``
+    within its radius (beyond CONE_SLACK). The keep-out always applies and is never counted broken
+    here: its row is exact."""
+    applies = np.zeros((len(u), 3), dtype=bool)
+    broken = np.zeros((len(u), 3), dtype=bool)
+    applies[:, 0] = True
     after = apply(a, states) + apply(b, u)
     if terms["speed_limit"] is not None:
-        out[:, 1] = speed_margin(after, goals, terms["speed_limit"]) < -SPEED_TOLERANCE
+        applies[:, 1] = True
+        broken[:, 1] = speed_margin(after, goals, terms["speed_limit"]) < -SPEED_TOLERANCE
     if terms["approach_cone"] is not None:
         region, slack, _ = cone_terms(apply(a, after) + apply(b, u), goals, terms["approach_cone"])
-        out[:, 2] = region & (slack < -CONE_SLACK)
-    return out
-
-
-def _applies(states, goals, u, a, b, speed_limit, approach_cone) -> np.ndarray:
-    """(N, 3) bool: which barriers apply to the held action ``u`` (the keep-out always does)."""
-    out = np.zeros((len(u), 3), dtype=bool)
-    out[:, 0] = True
-    after = apply(a, states) + apply(b, u)
-    out[:, 1] = speed_limit is not None
-    if approach_cone is not None:
-        out[:, 2] = cone_terms(apply(a, after) + apply(b, u), goals, approach_cone)[0]
-    return out
+        applies[:, 2] = region
+        broken[:, 2] = region & (slack < -CONE_SLACK)
+    return applies, broken
 
 
 def safe_actions_multi(
@@ -326,9 +321,9 @@ def safe_actions_multi(
     if len(stuck):  # the keep-out alone is infeasible: the thrust that best satisfies it
         beta, rho = barrier_terms(states[stuck], a, b, koz_radius + margin)
         u[stuck] = project_halfspace_box(u0[stuck], beta, rho, u_max).u
-    applies = _applies(states, goals, u, a, b, speed_limit, approach_cone)
-    dropped &= applies  # a barrier that does not apply at the answer was not given up
+    dropped &= _held(states, goals, u, a, b, terms)[0]  # a barrier that does not apply was not given up
     correction = np.linalg.norm(u - base, axis=1)
-    infeasible = np.any(dropped, axis=1) | np.isin(np.arange(len(u0)), stuck)
+    infeasible = np.any(dropped, axis=1)
+    infeasible[stuck] = True
     result = MultiCBFResult(u, correction > 0.0, infeasible, correction, dropped)
     return MultiCBFResult(*(field[0] for field in result)) if single else result

@@ -49,6 +49,11 @@ def _pair(name: str, value) -> tuple[float, float]:
     return a, b
 
 
+def path_constrained(problem) -> bool:
+    """Whether a docking problem has a speed limit or an approach cone beyond the keep-out."""
+    return problem.speed_limit is not None or problem.approach_cone is not None
+
+
 def speed_margin(states: np.ndarray, goals: np.ndarray, speed_limit: tuple[float, float]) -> np.ndarray:
     """``v0 + v1 ||r - g|| - ||v||`` (N,), m/s: negative where the speed limit is broken."""
     v0, v1 = speed_limit

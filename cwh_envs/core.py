@@ -18,7 +18,7 @@ from gymnasium import spaces
 from cwh_envs import dynamics
 from cwh_envs.cbf import safe_actions
 from cwh_envs.cbf_multi import safe_actions_multi
-from cwh_envs.constraints import CONE_TOLERANCE, SPEED_TOLERANCE, cone_terms, speed_margin
+from cwh_envs.constraints import CONE_TOLERANCE, SPEED_TOLERANCE, cone_terms, path_constrained, speed_margin
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
@@ -148,7 +148,7 @@ def filter_actions(
     """
     a, b = problem.matrices()
     common = dict(koz_radius=problem.koz_radius, margin=margin, u_max=problem.u_max)
-    if problem.speed_limit is None and problem.approach_cone is None:
+    if not path_constrained(problem):
         result = safe_actions(actions * problem.u_max, states, a, b, **common)
     else:
         result = safe_actions_multi(

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cwh_envs.constraints import path_constrained
 from cwh_envs.core import (
     DockingCore,
     DockingReward,
@@ -114,7 +115,7 @@ def fly(
     thrust = np.empty((n, horizon, 3))
     active = np.zeros((n, horizon), dtype=bool) if margin is not None else None
     infeasible = np.zeros((n, horizon), dtype=bool) if margin is not None else None
-    several = docking and (problem.speed_limit is not None or problem.approach_cone is not None)
+    several = docking and path_constrained(problem)  # the filter then says what it dropped
     dropped = np.zeros((n, horizon, 3), dtype=bool) if margin is not None and several else None
     states[:, 0] = core.states
     final = None
