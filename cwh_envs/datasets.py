@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cwh_envs import dynamics, experts, observations, problems, sampling
+from cwh_envs import constraints, dynamics, experts, observations, problems, sampling, socp
 from cwh_envs.experts import Infeasible, solve_docking, solve_rendezvous
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
@@ -451,7 +451,16 @@ def _builder_source_digest() -> str:
     the old pools under the old key. Hashing the source makes any such change a new key.
     """
     digest = hashlib.sha256()
-    for module in (dynamics, problems, sampling, experts, observations, sys.modules[__name__]):
+    for module in (
+        dynamics,
+        problems,
+        sampling,
+        constraints,
+        experts,
+        socp,
+        observations,
+        sys.modules[__name__],
+    ):
         digest.update(Path(module.__file__).read_bytes())
     return digest.hexdigest()[:16]
 

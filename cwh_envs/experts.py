@@ -14,7 +14,9 @@ state is affine in U, ``x_k = A^k x_0 + sum_{j<k} A^{k-1-j} B u_j``, and the ter
   against an independent, tightly converged proxsuite solve.
 * Docking: sequential convex programming over per-step half-spaces ``n_k^T r_k >= R + delta``
   (:func:`scp_docking`); each convex subproblem is solved exactly as a least-distance program
-  (one NNLS), with proxsuite's primal QP as the fallback when the thrust box binds.
+  (one NNLS), with proxsuite's primal QP as the fallback when the thrust box binds. Under a speed
+  limit or an approach cone each subproblem is one second-order-cone program instead
+  (:mod:`cwh_envs.socp`, Clarabel).
 
 Every returned trajectory is verified (terminal error, box, clearance); anything else raises
 :class:`Infeasible`.
@@ -32,8 +34,16 @@ import numpy as np
 from proxsuite import proxqp
 from scipy.optimize import nnls
 
+from cwh_envs import socp
 from cwh_envs.cbf import FALLBACK_DIRECTION
-from cwh_envs.constraints import APEX, CONE_TOLERANCE, SPEED_TOLERANCE, cone_axis, cone_terms, speed_margin
+from cwh_envs.constraints import (
+    CONE_TOLERANCE,
+    SPEED_TOLERANCE,
+    cone_axis,
+    cone_terms,
+    path_constrained,
+    speed_margin,
+)
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
 TERMINAL_TOLERANCE = 1e-6  # m and m/s, largest accepted terminal error of a docking demo
@@ -45,10 +55,6 @@ SCP_COST_TOLERANCE = 1e-6  # relative cost change between SCP iterates at conver
 WORKING_BAND = 2.0  # m, steps this close to R + delta enter the subproblem QP up front
 HALFSPACE_TOLERANCE = 1e-12  # unit-row slack counted as a violation by constraint generation
 KOZ_ACTIVE_TOLERANCE = 1e-3  # m, a demo "touches" R + delta when its clearance is within this
-CUT_TOLERANCE = 1e-9  # m/s and m: a point breaking the speed limit or the cone by more gets a cut
-CUT_ROUNDS = 400  # re-solves of one SCP subproblem with the path constraints' cuts
-PATH_TIGHTENING = 1e-3  # relative: v0 and the cone's half angle are solved this much tighter
-WARM_BAND = 1e-3  # m/s and m: points of the previous iterate this close to a limit seed its planes
 APPROACH_SHARE = 0.25  # of the horizon: the approach cone's first iterate enters the cone this early
 RENDEZVOUS_QP_EPS = 1e-6  # proxsuite only has to find the saturation pattern; the polish makes it exact
 POLISH_STEPS = 5
@@ -396,8 +402,10 @@ def _scp(model, x0, goal, gap, radius, problem, controls, positions) -> tuple[np
     iterations)."""
     cost = controls @ controls
     for iteration in range(1, SCP_MAX_ITERATIONS + 1):
-        cuts = _PathCuts(model, x0, goal, problem, positions) if _constrained(problem) else None
-        controls = _halfspace_subproblem(model, x0, gap, positions, radius, problem.u_max, cuts, controls)
+        if path_constrained(problem):
+            controls = _path_subproblem(model, x0, goal, positions, radius, problem)
+        else:
+            controls = _halfspace_subproblem(model, x0, gap, positions, radius, problem.u_max)
         new_positions = model.positions(x0, controls)
         new_cost = controls @ controls
         step = np.linalg.norm(new_positions - positions, axis=1).max()
@@ -424,10 +432,6 @@ def _approach_step(model) -> int:
     return model.horizon - int(np.ceil(APPROACH_SHARE * model.horizon))
 
 
-def _constrained(problem: DockingProblem) -> bool:
-    return problem.speed_limit is not None or problem.approach_cone is not None
-
-
 def _verify_path_constraints(states: np.ndarray, goal: np.ndarray, problem: DockingProblem) -> None:
     """Raise Infeasible unless the states x_1..x_H meet the speed limit and the approach cone as
     the env counts them (cwh_envs.constraints, with its tolerances)."""
@@ -442,134 +446,61 @@ def _verify_path_constraints(states: np.ndarray, goal: np.ndarray, problem: Dock
             raise Infeasible(f"trajectory leaves the approach cone by {-slack[region].min():.3g} m")
 
 
-class _PathCuts:
-    """The speed limit and the approach cone of one SCP subproblem, as cutting planes.
-
-    - The speed limit is a second-order cone once its distance term is linearised at the previous
-      iterate (``||r - g|| >= m^T (r - g)`` for the unit ``m`` of that iterate: a convex
-      restriction the previous iterate meets whenever it met the limit).
-    - The approach cone asks each step to be in the cone or at least ``radius`` from the port: a
-      union, not convex. Each step keeps the branch its previous iterate was on: inside the cone
-      (a convex cone), else outside the ball, linearised as the keep-out is
-      (``m^T (r - g) >= radius``). From the approach step on, every step is held to the cone, as
-      the first iterate (:func:`_waypoint_controls`) is.
-    - A cone is met by adding, at each point of the current solution that breaks it, the tangent
-      plane there, which every point of the cone satisfies, and re-solving until no point breaks
-      it by more than CUT_TOLERANCE. The speed limit and the cone are solved slightly tightened
-      (PATH_TIGHTENING), so the final trajectory meets the exact ones.
-    """
-
-    def __init__(self, model, x0, goal, problem: DockingProblem, anchor_positions: np.ndarray):
-        self.model, self.goal = model, goal
-        self.free_positions = model.powers[:, :3, :] @ x0  # r_k with U = 0
-        self.free_velocities = model.powers[:, 3:, :] @ x0
-        self.axis = cone_axis(goal[None])[0]
-        steps = np.arange(model.horizon + 1)
-        offset = anchor_positions - goal
-        norm = np.linalg.norm(offset, axis=1, keepdims=True)
-        unit = np.where(norm > 1e-9, offset / np.maximum(norm, 1e-300), self.axis)  # m_k
-        self.speed = None
-        if problem.speed_limit is not None:
-            v0, v1 = problem.speed_limit
-            self.speed = (steps[1:], unit[1:], v0 * (1 - PATH_TIGHTENING), v1)
-        self.cone = None
-        if problem.approach_cone is not None:
-            half_angle, radius = problem.approach_cone
-            cosine = np.cos(np.radians(half_angle * (1 - PATH_TIGHTENING)))
-            inside = offset @ self.axis >= cosine * norm[:, 0] - CUT_TOLERANCE
-            held = (inside | (steps >= _approach_step(model))) & (steps >= 1)
-            away = ~held & (steps >= 1) & model.controllable  # kept out of the ball about the port
-            self.cone = (held, away, unit, radius, cosine)
-
-    def violated(self, controls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rows and right-hand sides (``row @ U >= rhs``) of the planes broken by ``controls``;
-        empty when none is."""
-        return self.planes(controls, -CUT_TOLERANCE)
-
-    def planes(self, controls: np.ndarray, within: float) -> tuple[np.ndarray, np.ndarray]:
-        """The planes at every point of ``controls`` whose margin to a constraint is below ``within``
-        (negative: broken; positive: also the nearly tight ones, which seed the next subproblem
-        with the previous solution's active set)."""
-        model = self.model
-        positions = self.free_positions + model.position_response @ controls
-        rows, rhs = [], []
-        if self.speed is not None:
-            steps, unit, v0, v1 = self.speed
-            velocities = self.free_velocities[steps] + model.velocity_response[steps] @ controls
-            speed = np.linalg.norm(velocities, axis=1)
-            limit = v0 + v1 * np.einsum("ki,ki->k", unit, positions[steps] - self.goal)
-            bad = (limit - speed < within) & (speed > 0)
-            if bad.any():
-                k, w, m = steps[bad], velocities[bad] / speed[bad, None], unit[bad]
-                # v0 + v1 m^T (r_k - g) - w^T v_k >= 0, with r_k and v_k affine in U
-                rows.append(
-                    v1 * np.einsum("ki,kij->kj", m, model.position_response[k])
-                    - np.einsum("ki,kij->kj", w, model.velocity_response[k])
-                )
-                rhs.append(
-                    -v0
-                    + v1 * np.einsum("ki,ki->k", m, self.goal - self.free_positions[k])
-                    + np.einsum("ki,ki->k", w, self.free_velocities[k])
-                )
-        if self.cone is not None:
-            held, away, unit, radius, cosine = self.cone
-            offset = positions - self.goal
-            distance = np.linalg.norm(offset, axis=1)
-            bad = held & (offset @ self.axis - cosine * distance < within) & (distance > APEX)
-            if bad.any():  # (a - cos u)^T (r_k - g) >= 0, the tangent plane at the point
-                normal = self.axis - cosine * offset[bad] / distance[bad, None]
-                rows.append(np.einsum("ki,kij->kj", normal, model.position_response[bad]))
-                rhs.append(np.einsum("ki,ki->k", normal, self.goal - self.free_positions[bad]))
-            bad = away & (np.einsum("ki,ki->k", unit, offset) - radius < within)
-            if bad.any():  # m^T (r_k - g) >= radius
-                rows.append(np.einsum("ki,kij->kj", unit[bad], model.position_response[bad]))
-                rhs.append(radius + np.einsum("ki,ki->k", unit[bad], self.goal - self.free_positions[bad]))
-        if not rows:
-            return np.empty((0, 3 * model.horizon)), np.empty(0)
-        return np.concatenate(rows), np.concatenate(rhs)
-
-
 def koz_active(states: np.ndarray, problem: DockingProblem, tolerance: float = KOZ_ACTIVE_TOLERANCE):
     """Whether trajectories (H+1, 6) or (N, H+1, 6) touch ``R + delta`` within ``tolerance`` [m]."""
     clearance = np.linalg.norm(np.asarray(states)[..., :3], axis=-1).min(axis=-1)
     return clearance <= problem.koz_radius + problem.margin + tolerance
 
 
-def _halfspace_subproblem(model, x0, gap, positions, radius, u_max, cuts=None, previous=None) -> np.ndarray:
-    """Controls (3H,) of ``min ||U||^2 s.t. G U = gap, n_k^T r_k >= radius (k = 1..H-1), |U| <= u_max``
-    (and, with ``cuts``, the speed limit and the approach cone: :class:`_PathCuts`, seeded with
-    the planes at the nearly tight points of the ``previous`` iterate's controls).
+def _halfspace_subproblem(model, x0, gap, positions, radius, u_max) -> np.ndarray:
+    """Controls (3H,) of ``min ||U||^2 s.t. G U = gap, n_k^T r_k >= radius (k = 1..H-1), |U| <= u_max``.
 
     Constraint generation: only the steps within WORKING_BAND of the sphere enter the QP; any
     other step the solution violates is added and the QP re-solved, so the result solves the full
     subproblem. The box almost never binds (u_max = 2 N against ~0.2 N), so the exact box-free
     solve runs first and proxsuite's primal QP with the box is the fallback.
     """
-    distances = np.linalg.norm(positions, axis=1)
-    # A position exactly at the centre has no radial direction; any unit vector is a valid restriction.
-    normals = np.where(
-        distances[:, None] > 0.0, positions / np.maximum(distances, 1e-300)[:, None], FALLBACK_DIRECTION
-    )
+    normals = _keepout_normals(positions)
     rows = np.einsum("ki,kij->kj", normals, model.position_response)
     rhs = radius - np.einsum("ki,kij,j->k", normals, model.powers[:, :3, :], x0)
-    constrained = model.controllable.copy()  # the others were checked once in scp_docking
-    constrained[-1] = False  # the goal, outside R + delta by validation
-    working = constrained & (distances < radius + WORKING_BAND)
-    cut_rows, cut_rhs = np.empty((0, rows.shape[1])), np.empty(0)
-    if cuts is not None and previous is not None:
-        cut_rows, cut_rhs = cuts.planes(previous, WARM_BAND)
-    for _ in range(model.horizon if cuts is None else CUT_ROUNDS):
-        all_rows, all_rhs = np.concatenate([rows[working], cut_rows]), np.concatenate([rhs[working], cut_rhs])
-        controls = _min_norm_with_halfspaces(model, gap, all_rows, all_rhs)
+    constrained = _keepout_steps(model)
+    working = constrained & (np.linalg.norm(positions, axis=1) < radius + WORKING_BAND)
+    for _ in range(model.horizon):
+        controls = _min_norm_with_halfspaces(model, gap, rows[working], rhs[working])
         if np.abs(controls).max() > u_max:
-            controls = _primal_box_qp(model.terminal, gap, all_rows, all_rhs, u_max)
+            controls = _primal_box_qp(model.terminal, gap, rows[working], rhs[working], u_max)
         violated = constrained & ~working & (rows @ controls - rhs < -HALFSPACE_TOLERANCE)
-        new_rows, new_rhs = cuts.violated(controls) if cuts is not None else (cut_rows[:0], cut_rhs[:0])
-        if not violated.any() and len(new_rhs) == 0:
+        if not violated.any():
             return controls
         working |= violated
-        cut_rows, cut_rhs = np.concatenate([cut_rows, new_rows]), np.concatenate([cut_rhs, new_rhs])
     raise Infeasible("constraint generation did not settle")
+
+
+def _path_subproblem(model, x0, goal, positions, radius, problem: DockingProblem) -> np.ndarray:
+    """The subproblem under the speed limit or the approach cone: one second-order-cone program
+    with every keep-out half-space (:mod:`cwh_envs.socp`)."""
+    path = socp.PathConstraints.about(positions, goal, problem, _approach_step(model), model.controllable)
+    steps = np.flatnonzero(_keepout_steps(model))
+    try:
+        return socp.solve(model, x0, goal, steps, _keepout_normals(positions), radius, problem.u_max, path)
+    except socp.SubproblemFailed as error:
+        raise Infeasible(f"constrained subproblem: {error}") from error
+
+
+def _keepout_normals(positions: np.ndarray) -> np.ndarray:
+    """Unit n_k = r_k / ||r_k|| (H+1, 3) of the iterate's positions."""
+    distances = np.linalg.norm(positions, axis=1)
+    # A position exactly at the centre has no radial direction; any unit vector is a valid restriction.
+    return np.where(
+        distances[:, None] > 0.0, positions / np.maximum(distances, 1e-300)[:, None], FALLBACK_DIRECTION
+    )
+
+
+def _keepout_steps(model) -> np.ndarray:
+    """(H+1,) bool: the steps a subproblem holds outside the keep-out."""
+    constrained = model.controllable.copy()  # the others were checked once in scp_docking
+    constrained[-1] = False  # the goal, outside R + delta by validation
+    return constrained
 
 
 def _min_norm_with_halfspaces(model, gap, rows, rhs) -> np.ndarray:

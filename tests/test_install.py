@@ -20,7 +20,7 @@ import pytest
 from loop_helpers import copy_toy
 
 ROOT = Path(__file__).resolve().parents[1]
-HEAVY = ("numpy", "scipy", "matplotlib", "optuna", "torch", "proxsuite", "anthropic", "openai")
+HEAVY = ("numpy", "scipy", "matplotlib", "optuna", "torch", "proxsuite", "clarabel", "anthropic", "openai")
 
 
 def python(code: str, *, block: tuple[str, ...] = (), tmp_path: Path | None = None, **kwargs):
