@@ -10,6 +10,7 @@ import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
 
 from autoresearch.audit.auditjson import read_audit
+from autoresearch.audit.noise import stale_noise
 from autoresearch.cli import main
 from autoresearch.family import Family
 from autoresearch.proposers.tpe import TPEProposer
@@ -121,3 +122,27 @@ def test_cli_errors_are_one_line_with_exit_code_2(tmp_path, capsys):
     assert "K >= 2" in capsys.readouterr().err
     assert main(["verify", "--campaign", str(tmp_path)]) == 2
     assert "not a campaign directory" in capsys.readouterr().err
+
+
+def test_an_audit_of_a_changed_family_measures_the_noise_again(audited, tmp_path, capsys):
+    """The seed noise pins what it was measured on; an audit after train.py changed does not gate on
+    the old numbers (issue 28's family grew its data under an unchanged family.json noise)."""
+    family, _, _, _ = audited
+    copy = copy_family(family.path, tmp_path / "family")
+    old = copy.seed_noise
+    assert stale_noise(copy) == [] and old["pinned"]["files"]["train.py"]
+    train = copy.path / "train.py"
+    train.write_text(train.read_text() + "\n# a changed family\n")
+    copy = Family.load(copy.path)
+    assert [line.split(":")[0] for line in stale_noise(copy)] == ["train.py"]
+    root = run_campaign(copy, tmp_path / "campaign", ScriptedProposer([P1]), iterations=2)
+    assert main(["audit", "--campaign", str(root), "--noise-seeds", "2", "--seeds", "2", "--count", "2"]) == 0
+    assert "measuring again" in capsys.readouterr().out
+    noise = Family.load(copy.path).seed_noise
+    assert noise["k"] == 2 and noise["measured_at"] >= old["measured_at"]
+    assert stale_noise(Family.load(copy.path)) == []
+    # A noise measured before pinning has nothing to compare: it is kept, as before.
+    registry = json.loads((copy.path / "family.json").read_text())
+    del registry["seed_noise"]["pinned"]
+    (copy.path / "family.json").write_text(json.dumps(registry))
+    assert stale_noise(Family.load(copy.path)) == []

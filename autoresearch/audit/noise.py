@@ -5,7 +5,9 @@ The result is a property of the family, so it is written into the family's own f
 audit. Runs are logged as they finish; a re-run skips the seeds already measured, and a larger
 ``k`` extends the same seed list (the plan is deterministic). For a family with a sealed test
 split the same runs are scored on it too: ``seed_noise["test"]`` holds that split's mean, std and
-values (never shown to a proposer: autoresearch.family.search_view).
+values (never shown to a proposer: autoresearch.family.search_view). ``seed_noise["pinned"]`` holds
+what the numbers depend on (the baseline configuration, train.py and prepare.py), so that an audit
+of a changed family measures the noise again instead of gating on stale numbers.
 """
 
 from __future__ import annotations
@@ -22,8 +24,10 @@ from autoresearch.audit.trials import Trial, at_split, run_trials
 from autoresearch.campaign import portable_path
 from autoresearch.executors import Executor
 from autoresearch.family import TEST, Family
+from autoresearch.provenance import family_hashes
 
 STEP = "noise"
+PINNED_FILES = ("train.py", "prepare.py")  # the baseline's code and data; program.md is prose
 
 
 def default_noise_dir(family: Family) -> Path:
@@ -88,6 +92,7 @@ def measure_noise(
         "measured_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "runs_dir": portable_path(root),
         "failed": failed,
+        "pinned": pins(family),
         **sealed,
     }
     set_family_field(family.path, "seed_noise", noise)
@@ -98,6 +103,30 @@ def measure_noise(
             {"status": "done", "source": "measured", **noise, "provenance": campaign.provenance},
         )
     return noise
+
+
+def pins(family: Family) -> dict[str, Any]:
+    """What the seed noise depends on, as it is now: the baseline configuration and the hashes of
+    PINNED_FILES."""
+    hashes = family_hashes(family.path)
+    return {"baseline": family.baseline_config, "files": {name: hashes[name] for name in PINNED_FILES}}
+
+
+def stale_noise(family: Family) -> list[str]:
+    """How the family differs from what its seed noise was measured on, one line each; empty when
+    it does not, and when the noise predates pinning (nothing to compare)."""
+    pinned = (family.seed_noise or {}).get("pinned")
+    if not isinstance(pinned, dict):
+        return []
+    now = pins(family)
+    found = [
+        f"{name}: sha256 {(pinned.get('files') or {}).get(name)} -> {sha}"
+        for name, sha in now["files"].items()
+        if (pinned.get("files") or {}).get(name) != sha
+    ]
+    if pinned.get("baseline") != now["baseline"]:
+        found.append("the baseline configuration")
+    return found
 
 
 def record_existing_noise(campaign: AuditedCampaign) -> dict[str, Any]:

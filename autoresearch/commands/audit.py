@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from autoresearch.audit.inputs import gate_split, has_noise, open_campaign
-from autoresearch.audit.noise import measure_noise, record_existing_noise
+from autoresearch.audit.noise import measure_noise, record_existing_noise, stale_noise
 from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.report import write_report
@@ -72,10 +72,15 @@ def run(args: argparse.Namespace) -> int:
         family = campaign.family
         split = gate_split(family, args.gate_split)
         measured = has_noise(family, SEARCH) and (not family.has_test_split or has_noise(family, TEST))
-        if measured and not args.force:
+        stale = stale_noise(family) if measured else []
+        if measured and not args.force and not stale:
             noise = record_existing_noise(campaign)
             print(f"[noise] from family.json: {describe_noise(noise)}")
         else:
+            if stale and not args.force:
+                print(
+                    f"[noise] family.json's was measured on another family ({'; '.join(stale)}): measuring again"
+                )
             noise = measure_noise(family, executor, k=args.noise_seeds, campaign=campaign)
             print(f"[noise] measured: {describe_noise(noise)}")
         print(f"[verify, gated on the {split} split]")
