@@ -7,7 +7,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMP_NUM_THREADS=1 MPLBACKEND=Agg PATH="$PWD/.venv/bin:$PATH"
-(cd families/docking-constrained && python prepare.py --warm-cache)  # the constrained expert: slow, once
+(cd families/docking-constrained && python prepare.py --warm-cache)  # 1,536 constrained solves, once
 autoresearch loop --family docking-constrained --proposer gp --seed 0 --max-iters 16 --plateau-window 1000 \
   --timeout-per-run 600 --campaign results/docking-constrained/gp --workers 2 --plain
 autoresearch audit --campaign results/docking-constrained/gp --top 3 --seeds 10 --count 16 --workers 2

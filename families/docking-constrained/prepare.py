@@ -28,6 +28,7 @@ NEEDS = DataNeeds(
     n_eval=train.N_EVAL,
     n_test=train.N_TEST,
     obs_dim=train.OBS_DIM,
+    pool_recovery=train.POOL_RECOVERY,
 )
 
 if __name__ == "__main__":

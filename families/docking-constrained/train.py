@@ -9,18 +9,17 @@ cone on every start (docs/envs.md); the expert is the constrained SCP.
     python train.py [--seed 0] [--run-id ID] [--runs-log runs.jsonl] [--out out] [--eval-split search]
 
 A time-conditioned MLP maps [r, v, g, tau] to thrust / u_max and is trained by MSE on screened
-constrained-expert demonstrations, then flown in closed loop from held-out starts through the
+constrained-expert demonstrations, optionally augmented with recovery demonstrations from
+perturbed states (the constrained expert re-solved from there), then flown in closed loop from held-out starts through the
 env's own batched core (cwh_envs.rollout.fly), through the multi-constraint CBF filter
 (cwh_envs.cbf_multi) when RUNTIME_CBF_FILTER is on. The primary metric is score = mean terminal
 distance + 10 x (mean keep-out + speed + cone violation rates), lower is better; a run is
 strict-feasible when success >= 0.80 (success asks every constraint met), every violation rate
-is exactly 0 and the minimum keep-out clearance is >= 0. By default the starts are the 32 of the
-search split; ``--eval-split test`` scores the record on the 128 of the sealed test split and
-keeps the search split's metrics under ``search_split``. The splits and the demonstration pool are
-smaller than the docking family's because the constrained expert takes seconds to minutes per
-start (benchmarks/bench_constrained_docking.py). The run ends with one line ``FINAL_METRIC: {json}``
-that is also appended to the runs log; PROGRESS lines as in the docking family, on the first 8
-search starts. Fuel is logged, never optimised: ``effort_ratio`` and ``delta_v_ratio`` against the
+is exactly 0 and the minimum keep-out clearance is >= 0. By default the starts are the 128 of the
+search split; ``--eval-split test`` scores the record on the 1024 of the sealed test split and
+keeps the search split's metrics under ``search_split``: the docking family's sizes. The run ends
+with one line ``FINAL_METRIC: {json}`` that is also appended to the runs log; PROGRESS lines as in
+the docking family, on the first 16 search starts. Fuel is logged, never optimised: ``effort_ratio`` and ``delta_v_ratio`` against the
 constrained expert from the same starts. ``dispersed`` is the Monte Carlo auxiliary: success and
 violation rates of the same policy on the evaluation starts under DISPERSIONS; it never enters
 the score.
@@ -43,7 +42,7 @@ import torch
 from filelock import FileLock
 from torch import nn
 
-from cwh_envs.datasets import Demonstrations, demonstrations, evaluation_set
+from cwh_envs.datasets import Demonstrations, demonstrations, evaluation_set, recovery_demonstrations
 from cwh_envs.problems import DockingProblem
 from cwh_envs.rollout import Flight, control_effort
 from cwh_envs.rollout import fly as fly_policy
@@ -60,6 +59,7 @@ N_LAYERS = 2  # hidden layers
 ACTIVATION = "tanh"  # hidden nonlinearity: "tanh", "relu" or "gelu"
 DROPOUT = 0.0  # dropout probability after each hidden layer (training only)
 RUNTIME_CBF_FILTER = True  # fly through the multi-constraint predictive CBF safety filter
+RECOVERY_AUGMENT_FRAC = 0.0  # recovery trajectories added, as a fraction of N_DEMOS
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -68,10 +68,12 @@ METRIC = "score"
 # constraints (the constants of benchmarks/bench_constrained_docking.py, chosen there by measurement).
 PROBLEM = DockingProblem(speed_limit=(0.01, 2 * DockingProblem().n), approach_cone=(30.0, 15.0))
 VIOLATION_WEIGHT = 10.0  # Eq. rpo_score: one sustained violation outweighs the accuracy budget
-POOL_DEMOS = 64  # the N_DEMOS upper bound: one fixed pool, so a warm cache covers every config
-N_EVAL = 32  # held-out, screened far-side evaluation starts: the search split
-N_TEST = 128  # the sealed test split, screened alike (--eval-split test)
-N_PROGRESS = 8  # search starts behind each PROGRESS line: a cheap proxy of the metric
+POOL_DEMOS = 256  # the N_DEMOS upper bound: one fixed pool, so a warm cache covers every config
+MAX_RECOVERY_FRAC = 0.5  # the RECOVERY_AUGMENT_FRAC upper bound
+POOL_RECOVERY = round(MAX_RECOVERY_FRAC * POOL_DEMOS)  # recovery trajectories: also one fixed pool
+N_EVAL = 128  # held-out, screened far-side evaluation starts: the search split
+N_TEST = 1024  # the sealed test split, screened alike (--eval-split test)
+N_PROGRESS = 16  # search starts behind each PROGRESS line: a cheap proxy of the metric
 # The Monte Carlo auxiliary's fixed dispersion set (standard deviations; cwh_envs.dispersions):
 # 2 % thrust magnitude, 1 degree misalignment, 2 % mass, 0.05 m and 0.5 mm/s navigation noise.
 DISPERSIONS = dict(thrust_scale=0.02, misalignment_deg=1.0, mass=0.02, nav_position=0.05, nav_velocity=5e-4)
@@ -93,6 +95,7 @@ CONFIG_NAMES = (
     "ACTIVATION",
     "DROPOUT",
     "RUNTIME_CBF_FILTER",
+    "RECOVERY_AUGMENT_FRAC",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 
@@ -160,6 +163,9 @@ def check_config(config: dict) -> None:
         problems.append(f"ACTIVATION must be one of {sorted(ACTIVATIONS)}")
     if not isinstance(config["RUNTIME_CBF_FILTER"], bool):
         problems.append("RUNTIME_CBF_FILTER must be True or False")
+    frac = config["RECOVERY_AUGMENT_FRAC"]
+    if not (isinstance(frac, int | float) and 0 <= frac <= MAX_RECOVERY_FRAC):
+        problems.append(f"RECOVERY_AUGMENT_FRAC must lie in [0, {MAX_RECOVERY_FRAC}]")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -175,10 +181,19 @@ def seed_everything(seed: int) -> torch.device:
 
 
 def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Observations (M, 10) and expert thrust (M, 3) [N] of N_DEMOS demos, and the pool's content key."""
+    """Observations (M, 10) and expert thrust (M, 3) [N]: N_DEMOS demos plus the recovery share,
+    and the content keys of the sets they come from."""
     pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM)
     demos = pool.take(config["N_DEMOS"])
-    return demos.observations, demos.actions, {"train_pool": pool.content_key}
+    obs, actions, keys = [demos.observations], [demos.actions], {"train_pool": pool.content_key}
+    n_recovery = round(config["RECOVERY_AUGMENT_FRAC"] * config["N_DEMOS"])
+    if n_recovery > 0:
+        recovery_pool = recovery_demonstrations(TASK, POOL_RECOVERY, seed=DATA_SEED, problem=PROBLEM)
+        recovery = recovery_pool.take(n_recovery)
+        obs.append(recovery.observations)
+        actions.append(recovery.actions)
+        keys["recovery_pool"] = recovery_pool.content_key
+    return np.concatenate(obs), np.concatenate(actions), keys
 
 
 def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int, report=None):
