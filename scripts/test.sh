@@ -8,7 +8,8 @@ cd "$root"
 echo "[test] ruff check"; ruff check .
 echo "[test] ruff format --check"; ruff format --check .
 echo "[test] pytest"
-# Two workers' worth of cores: keep BLAS/torch from oversubscribing them. Every extra is installed,
-# so a test that needs one fails rather than skips (tests/conftest.py).
+# One test process per core (pytest-xdist; the tests that start Ray share one worker, see
+# tests/conftest.py), each single-threaded so that BLAS/torch do not oversubscribe the cores. Every
+# extra is installed, so a test that needs one fails rather than skips (tests/conftest.py).
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MPLBACKEND=Agg CWH_REQUIRE_EXTRAS=1
-exec python -m pytest -q "$@"
+exec python -m pytest -q -n "${TEST_WORKERS:-2}" --dist loadgroup "$@"

@@ -55,6 +55,16 @@ def pytest_runtest_setup(item):
             skip_or_fail(missing)
 
 
+def pytest_collection_modifyitems(config, items):
+    # Under pytest-xdist (scripts/test.sh runs -n 2 --dist loadgroup) every test that starts Ray runs
+    # on one worker, one after another: two Ray instances on two cores starve each other.
+    if not config.pluginmanager.hasplugin("xdist"):
+        return
+    for item in items:
+        if "ray_instance" in item.fixturenames or any("ray" in m.args for m in item.iter_markers("needs")):
+            item.add_marker(pytest.mark.xdist_group("ray"))
+
+
 def pytest_configure(config):
     # Before collection (test modules copy os.environ for their subprocesses at import): every set the
     # tests build, in-process or in a subprocess, goes to a directory of this run, never the user's
