@@ -74,6 +74,7 @@ EVALUATION_LOG = "results/logs/bench_evaluation.txt"  # bench_evaluation.py's co
 INSTALL_LOG = "results/logs/bench_install.txt"  # bench_install.py's committed output
 CBF_MULTI_LOG = "results/logs/bench_cbf_multi.txt"  # bench_cbf_multi.py's committed output
 RAY_LOG = "results/logs/bench_ray_scaling.txt"  # bench_ray_scaling.py's committed output
+EXPERT_SOLVERS_LOG = "results/logs/bench_expert_solvers.txt"  # bench_expert_solvers.py's committed output
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
 
@@ -406,6 +407,28 @@ def cbf_multi_rows() -> list[Row]:
     return qps + whole
 
 
+def expert_solver_rows() -> list[Row]:
+    """The constrained docking expert with Clarabel's SOCP against tangent-plane cuts, per start and
+    in all, from bench_expert_solvers.py's committed output (nothing is run)."""
+    log = ROOT / EXPERT_SOLVERS_LOG
+    what = "constrained docking expert (SCP), s per start: Clarabel SOCP vs polyhedral cuts"
+    if not log.is_file():
+        return [(what, "not run", "", f"benchmarks/bench_expert_solvers.py > {EXPERT_SOLVERS_LOG}")]
+    text = log.read_text(encoding="utf-8")
+    runs = {cells[0]: cells for cells in table_cells(text, "") if len(cells) == 6 and " of " in cells[1]}
+    conic, cuts = runs["Clarabel SOCP"], runs["polyhedral cuts"]
+    agreement = re.search(r"final costs agree within (\S+) relative", text)
+    return [
+        (
+            f"{what} (median, max)",
+            f"{conic[2]} vs {cuts[2]}; max {conic[3]} vs {cuts[3]}",
+            f"in all {conic[4]} vs {cuts[4]}",
+            f"verified {conic[1]} vs {cuts[1]}; final costs within {agreement.group(1) if agreement else '?'}; "
+            f"{EXPERT_SOLVERS_LOG}",
+        )
+    ]
+
+
 def ray_rows() -> list[Row]:
     """Campaign and audit wall time against Ray workers, and Ray's overhead per run, from
     bench_ray_scaling.py's committed output (it starts a Ray instance per worker count)."""
@@ -585,7 +608,8 @@ def main() -> int:
         rows += compare_rows()
         rows += early_stop_rows()
         rows += evidence_rows()
-        rows += sb3_rows() + evaluation_rows() + install_rows() + cbf_multi_rows() + ray_rows()
+        rows += sb3_rows() + evaluation_rows() + install_rows() + cbf_multi_rows() + expert_solver_rows()
+        rows += ray_rows()
         rows.append(main_job_row())
     progress("done")
     text = f"{machine_line()}\n\n{table(rows)}\n"

@@ -15,8 +15,8 @@ stay variables, which keeps every row sparse (the condensed form's rows are dens
 
 Why Clarabel (measured in ``benchmarks/bench_expert_solvers.py``): the alternative kept the exact
 least-distance solver of the keep-out and met each cone by tangent-plane cuts, re-solving until no
-point broke it. On the same subproblems the two agree to ~1e-8 of the cost, but the cuts took up to
-1.5 s for a subproblem that Clarabel solves in tens of ms, and the whole expert up to minutes per
+point broke it. On the same subproblems the two agree to ~1e-7 of the cost, but the cuts took up to
+52 s for a subproblem that Clarabel solves in tens of ms, and the whole expert up to minutes per
 start. Clarabel is an interior-point solver for conic programs (Apache-2.0, Rust with Python
 bindings, also a qpsolvers backend); the keep-out-only problem keeps its exact NNLS path.
 """

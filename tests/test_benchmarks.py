@@ -215,3 +215,22 @@ def test_cbf_multi_rows_read_the_committed_table(tmp_path, monkeypatch):
     assert random[1:3] == ("700,000 vs 14,000", "50x (target >= 50x)") and "5.1e-12" in random[3]
     assert own[0].endswith("the filter's own, on PD-flight states instances") and own[2].startswith("60x")
     assert whole[1:3] == ("100,000", "5.0x one proxsuite QP")
+
+
+def test_expert_solver_rows_read_the_committed_table(tmp_path, monkeypatch):
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    assert run_all.expert_solver_rows()[0][1] == "not run"
+    (tmp_path / "results" / "logs").mkdir(parents=True)
+    (tmp_path / "results" / "logs" / "bench_expert_solvers.txt").write_text(
+        "Python 3.11\n\n| solver | time per subproblem, median | p90 | max |\n|---|---:|---:|---:|\n"
+        "| Clarabel SOCP | 36.0 ms | 45.2 ms | 63 ms |\n\n"
+        "| solver | verified | time per start, median | max | total | SCP iterations, median |\n"
+        "|---|---:|---:|---:|---:|---:|\n"
+        "| Clarabel SOCP | 16 of 16 | 0.86 s | 3.6 s | 17 s | 25 |\n"
+        "| polyhedral cuts | 15 of 16 | 4.70 s | 196.4 s | 368 s | 25 |\n\n"
+        "On the 15 starts both solved, the final costs agree within 5.8e-09 relative; time ...\n"
+    )
+    ((what, measured, ratio, note),) = run_all.expert_solver_rows()
+    assert what.startswith("constrained docking expert")
+    assert measured == "0.86 s vs 4.70 s; max 3.6 s vs 196.4 s" and ratio == "in all 17 s vs 368 s"
+    assert note.startswith("verified 16 of 16 vs 15 of 16; final costs within 5.8e-09")
