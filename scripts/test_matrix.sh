@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The base install's fast tier on the oldest and newest Python the project claims, at both ends of
-# its dependency ranges (the second job of .ci/run):
+# its dependency ranges (.ci/run runs it beside scripts/test.sh):
 #   py3.10-lowest: every direct dependency at its lowest declared version (uv --resolution lowest-direct)
 #   py3.13-newest: every dependency at its newest release
 # Both install [llm,dev] (the base, the LLM SDKs, the test tools): no torch, so the tests that need
