@@ -30,7 +30,7 @@ import clarabel
 import numpy as np
 from scipy import sparse
 
-from cwh_envs.constraints import CONE_TOLERANCE, cone_axis
+from cwh_envs.constraints import CONE_TOLERANCE, cone_axis, cone_terms
 
 PATH_TIGHTENING = 1e-3  # relative: v0 and the cone's half angle are solved this much tighter
 
@@ -54,7 +54,6 @@ class PathConstraints:
       exact constraints.
     """
 
-    goal: np.ndarray  # (3,)
     unit: np.ndarray  # (H+1, 3): m_k
     speed: tuple[float, float] | None  # (v0, v1), tightened
     axis: np.ndarray  # (3,): a
@@ -80,11 +79,12 @@ class PathConstraints:
             half_angle, radius = problem.approach_cone
             # Inside as the env counts it: the solver meets the tightened cone only to its tolerance,
             # and a point on the tightened boundary flipping branch on that noise stalls the SCP.
-            inside = offset @ axis >= np.cos(np.radians(half_angle)) * norm[:, 0] - CONE_TOLERANCE
+            _, slack, _ = cone_terms(anchor, np.broadcast_to(goal, anchor.shape), problem.approach_cone)
+            inside = slack >= -CONE_TOLERANCE
             cosine = float(np.cos(np.radians(half_angle * (1 - PATH_TIGHTENING))))
             held = (inside | (steps >= held_from)) & (steps >= 1)
             away = ~held & (steps >= 1) & controllable
-        return cls(goal, unit, speed, axis, cosine, held, away, float(radius))
+        return cls(unit, speed, axis, cosine, held, away, float(radius))
 
 
 def solve(model, x0, goal, keepout_steps, normals, radius, u_max, path: PathConstraints) -> np.ndarray:
