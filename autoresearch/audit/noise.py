@@ -118,11 +118,11 @@ def stale_noise(family: Family) -> list[str]:
     pinned = (family.seed_noise or {}).get("pinned")
     if not isinstance(pinned, dict):
         return []
-    now = pins(family)
+    now, files = pins(family), pinned.get("files") or {}
     found = [
-        f"{name}: sha256 {(pinned.get('files') or {}).get(name)} -> {sha}"
+        f"{name}: sha256 {files.get(name)} -> {sha}"
         for name, sha in now["files"].items()
-        if (pinned.get("files") or {}).get(name) != sha
+        if files.get(name) != sha
     ]
     if pinned.get("baseline") != now["baseline"]:
         found.append("the baseline configuration")

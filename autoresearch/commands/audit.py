@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             if stale and not args.force:
                 print(
-                    f"[noise] family.json's was measured on another family ({'; '.join(stale)}): measuring again"
+                    f"[noise] family.json's seed noise was measured on another version of the family ({'; '.join(stale)}): measuring again"
                 )
             noise = measure_noise(family, executor, k=args.noise_seeds, campaign=campaign)
             print(f"[noise] measured: {describe_noise(noise)}")
