@@ -61,9 +61,19 @@ def test_early_stop_under_ray_decides_as_a_local_loop_does(ray_instance, tmp_pat
     assert logged == [r["run_id"] for r in remote[:6] if r["status"] == "ran"]
 
 
-def trainers(text: str) -> list[tuple[int, str]]:
-    """The train.py processes naming ``text`` (each run also has a watchdog naming its directory)."""
-    return [(pid, cmd) for pid, cmd in processes_naming(text) if " train.py " in cmd]
+def started_runs(root: Path, pattern: str = "runs/*/remote.json") -> dict[str, str]:
+    """Run id -> the directory on its worker, of each run under ``root`` that started (remote.json)."""
+    return {where.parent.name: read_json(where)["run_dir"] for where in root.glob(pattern)}
+
+
+def processes_of(run_dirs) -> list[tuple[int, str]]:
+    """The live processes of these runs: each train.py and its watchdog name the run's directory. Only
+    these: the suite runs on both cores, and another test's runs may be ending beside this one's."""
+    return [found for run_dir in run_dirs for found in processes_naming(run_dir)]
+
+
+def trainers(run_dirs) -> list[tuple[int, str]]:
+    return [(pid, cmd) for pid, cmd in processes_of(run_dirs) if " train.py " in cmd]
 
 
 def _free_port() -> int:
@@ -145,9 +155,18 @@ def test_two_nodes_without_a_shared_filesystem_kill_9_and_resume(tmp_path):
             assert driver.poll() is None, f"the loop ended before {n} runs started"
             return len(list(campaign.glob("runs/*/remote.json"))) >= n
 
+        def unfinished() -> list[str]:  # started on the worker, nothing back yet
+            runs = started_runs(campaign)
+            return [
+                d for run_id, d in runs.items() if not (campaign / "runs" / run_id / "result.json").exists()
+            ]
+
+        def training(n: int) -> bool:  # n runs in flight, each with its train.py in a worker scratch dir
+            dirs = unfinished()
+            return len(dirs) == n and all(SCRATCH in d for d in dirs) and len(trainers(dirs)) == n
+
         _wait(lambda: started(3), 180, "two runs in flight on the worker node")  # the baseline, 2 slow ones
-        time.sleep(1.0)
-        assert len(trainers(SCRATCH)) == 2  # both train.py processes run, in worker scratch dirs
+        _wait(lambda: training(2), 60, "the two slow runs' train.py (the baseline's ended)")
         # SIGKILL of a run's Ray worker: the run dies with it (its watchdog), and is recorded as failed.
         killed = read_json(campaign / "runs" / "it0002" / "remote.json")
         os.kill(killed["worker_pid"], signal.SIGKILL)
@@ -155,19 +174,22 @@ def test_two_nodes_without_a_shared_filesystem_kill_9_and_resume(tmp_path):
         _wait(lambda: started(4), 60, "the loop to go on with iteration 4")
         (failed,) = [r for r in read_jsonl(campaign / "proposals.jsonl") if r["run_id"] == "it0002"]
         assert failed["status"] == "failed" and "Ray worker died" in failed["reason"]
-        time.sleep(1.0)
-        assert len(trainers(SCRATCH)) == 2  # it0003 and it0004
+        _wait(lambda: training(2), 60, "the train.py of it0003 and it0004")
         os.killpg(driver.pid, signal.SIGKILL)
         driver.wait()
         # No train.py outlives its task: the job's workers die with the driver, their runs with them.
-        _wait(lambda: not processes_naming(SCRATCH), 60, "the runs of the dead driver to stop")
+        _wait(
+            lambda: not processes_of(started_runs(campaign).values()),
+            60,
+            "the runs of the dead driver to stop",
+        )
         in_flight = sorted(campaign.glob("runs/it000[34]/remote.json"))
         assert len(in_flight) == 2
         for where in in_flight:
             assert SCRATCH in read_json(where)["run_dir"]  # it trained in a scratch directory of the worker
             assert not (where.parent / "result.json").exists()  # and nothing came back from the killed task
         _stop(nodes.pop())  # "ray stop" of the worker node
-        assert processes_naming(SCRATCH) == []
+        assert processes_of(started_runs(campaign).values()) == []
 
         nodes.append(_node([f"--address={address}", "--num-cpus=2"], {**env, "TOY_FAST": "1"}, hide))
         resumed = subprocess.run(
@@ -189,4 +211,4 @@ def test_two_nodes_without_a_shared_filesystem_kill_9_and_resume(tmp_path):
             run = campaign / "runs" / record["run_id"]
             assert SCRATCH in read_json(run / "remote.json")["run_dir"]  # trained on the worker
             assert json.loads((run / "result.json").read_text())["status"] == "ok"
-    assert processes_naming(SCRATCH) == [] and processes_naming(str(campaign)) == []
+    assert processes_of(started_runs(campaign).values()) == [] and processes_naming(str(campaign)) == []

@@ -10,7 +10,7 @@ import time
 
 import pytest
 from loop_helpers import copy_toy, processes_naming
-from test_ray_executor import SCRATCH
+from test_ray_executor import processes_of, started_runs
 
 
 @pytest.mark.slow
@@ -45,10 +45,11 @@ def test_sigterm_under_ray_cancels_the_runs_in_flight(tmp_path, command):
         assert proc.returncode == 130, err[-2000:]
         assert time.monotonic() - sent < 30  # not the 300 s the runs would take
         # both train.py (in scratch directories of the worker) and their watchdogs are gone
-        assert processes_naming(str(out)) == [] and processes_naming(SCRATCH) == []
+        assert processes_naming(str(out)) == [] and processes_of(started_runs(out, started).values()) == []
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        for pid, _ in processes_naming(str(out)) + processes_naming(SCRATCH):  # what a failure left behind
+        left = processes_naming(str(out)) + processes_of(started_runs(out, started).values())
+        for pid, _ in left:  # what a failure left behind
             os.kill(pid, signal.SIGKILL)
