@@ -44,6 +44,7 @@ def test_early_stop_under_ray_decides_as_a_local_loop_does(ray_instance, tmp_pat
             early_stop="median",
             executor=executor,
         )
+    assert processes_of(started_runs(tmp_path / "ray").values()) == []  # the pruned run's train.py too
     keys = ("status", "config", "metric", "verdict", "best_so_far")
     assert [[r[k] for k in keys] for r in remote] == [[r[k] for k in keys] for r in local]
     assert remote[5]["status"] == "early_stopped" and 1 <= len(remote[5]["progress"]) < 4
