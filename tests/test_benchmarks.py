@@ -14,6 +14,16 @@ import run_all
 from autoresearch.campaign import Campaign, CampaignMeta, Record, Status
 
 
+def committed_log(tmp_path, monkeypatch, rows, log: str, text: str) -> None:
+    """``rows()`` says "not run" until ``log`` (the path of a benchmark's committed output) exists;
+    then the log holds ``text``, for the caller to read back through ``rows()``."""
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    assert rows()[0][1] == "not run"
+    path = tmp_path / log
+    path.parent.mkdir(parents=True)
+    path.write_text(text)
+
+
 def make_group(root: Path, proposer: str, space: str | None, repeats: list[list[float | None]]) -> None:
     """A group of repeats whose campaigns ran these metrics (None: a failed run), toy family (minimize),
     written through the campaign store."""
@@ -156,14 +166,12 @@ def test_sb3_and_evaluation_rows_read_the_committed_tables(tmp_path, monkeypatch
 
 
 def test_install_rows_read_the_committed_table(tmp_path, monkeypatch):
-    monkeypatch.setattr(run_all, "ROOT", tmp_path)
-    assert run_all.install_rows()[0][1] == "not run"
-    (tmp_path / "results" / "logs").mkdir(parents=True)
-    (tmp_path / "results" / "logs" / "bench_install.txt").write_text(
+    text = (
         "Python 3.11\n\n| measure | value | comparison |\n|---|---:|---|\n"
         "| install size, base | 400 MB | 1.0x base |\n| install size, [all] | 2,000 MB | 5.0x base |\n"
         "| start-up, import cwh_envs | 0.300 s | +0.100 s over gymnasium (target <= 0.15 s) |\n"
     )
+    committed_log(tmp_path, monkeypatch, run_all.install_rows, "results/logs/bench_install.txt", text)
     rows = run_all.install_rows()
     assert [r[:3] for r in rows] == [
         ("install size, base", "400 MB", "1.0x base"),
@@ -174,16 +182,14 @@ def test_install_rows_read_the_committed_table(tmp_path, monkeypatch):
 
 
 def test_ray_rows_read_the_committed_tables(tmp_path, monkeypatch):
-    monkeypatch.setattr(run_all, "ROOT", tmp_path)
-    assert run_all.ray_rows()[0][1] == "not run"
-    (tmp_path / "results" / "logs").mkdir(parents=True)
-    (tmp_path / "results" / "logs" / "bench_ray_scaling.txt").write_text(
+    text = (
         "Python 3.11\n\n| Ray workers | campaign wall | vs 1 worker | audit wall | vs 1 worker |\n"
         "|---:|---:|---:|---:|---:|\n| 1 | 20.0 s | 1.00x | 24.0 s | 1.00x |\n"
         "| 4 | 8.0 s | 0.40x | 6.0 s | 0.25x |\n\n"
         "| one run at a time, no sleep | seconds per run | Ray overhead per run |\n|---|---:|---:|\n"
         "| local subprocess | 0.500 | reference |\n| Ray task, --ray-files ship | 0.510 | +0.010 |\n"
     )
+    committed_log(tmp_path, monkeypatch, run_all.ray_rows, "results/logs/bench_ray_scaling.txt", text)
     scaling, ship = run_all.ray_rows()
     assert scaling[0].endswith("4 vs 1 worker(s)") and scaling[1:3] == ("8.0 s / 6.0 s", "0.40x / 0.25x")
     assert ship[:3] == ("Ray overhead per run, --ray-files ship", "0.510 s per run", "+0.010 s vs local")
@@ -198,10 +204,7 @@ def test_evidence_rows_read_the_committed_campaigns():
 
 
 def test_cbf_multi_rows_read_the_committed_table(tmp_path, monkeypatch):
-    monkeypatch.setattr(run_all, "ROOT", tmp_path)
-    assert run_all.cbf_multi_rows()[0][1] == "not run"
-    (tmp_path / "results" / "logs").mkdir(parents=True)
-    (tmp_path / "results" / "logs" / "bench_cbf_multi.txt").write_text(
+    text = (
         "Python 3.11\n\n| QP instances | n | infeasible | feasibility agrees | max abs u gap [N] | exact | prox | x |\n"
         "|---|---|---|---|---|---|---|---|\n"
         "| random (three rows) | 1024 | 0.18 | 1.0000 | 5.1e-12 | 700,000 | 14,000 | 50x |\n"
@@ -211,6 +214,7 @@ def test_cbf_multi_rows_read_the_committed_table(tmp_path, monkeypatch):
         "\n| PD law + multi-constraint CBF, 128 starts | starts that break it | steps broken | gave up |\n"
         "| keep-out | 0.0% | 0.0% | never |\n"
     )
+    committed_log(tmp_path, monkeypatch, run_all.cbf_multi_rows, "results/logs/bench_cbf_multi.txt", text)
     random, own, whole = run_all.cbf_multi_rows()
     assert random[1:3] == ("700,000 vs 14,000", "50x (target >= 50x)") and "5.1e-12" in random[3]
     assert own[0].endswith("the filter's own, on PD-flight states instances") and own[2].startswith("60x")
@@ -218,10 +222,7 @@ def test_cbf_multi_rows_read_the_committed_table(tmp_path, monkeypatch):
 
 
 def test_expert_solver_rows_read_the_committed_table(tmp_path, monkeypatch):
-    monkeypatch.setattr(run_all, "ROOT", tmp_path)
-    assert run_all.expert_solver_rows()[0][1] == "not run"
-    (tmp_path / "results" / "logs").mkdir(parents=True)
-    (tmp_path / "results" / "logs" / "bench_expert_solvers.txt").write_text(
+    text = (
         "Python 3.11\n\n| solver | time per subproblem, median | p90 | max |\n|---|---:|---:|---:|\n"
         "| Clarabel SOCP | 36.0 ms | 45.2 ms | 63 ms |\n\n"
         "| solver | verified | time per start, median | max | total | SCP iterations, median |\n"
@@ -229,6 +230,9 @@ def test_expert_solver_rows_read_the_committed_table(tmp_path, monkeypatch):
         "| Clarabel SOCP | 16 of 16 | 0.86 s | 3.6 s | 17 s | 25 |\n"
         "| polyhedral cuts | 15 of 16 | 4.70 s | 196.4 s | 368 s | 25 |\n\n"
         "On the 15 starts both solved, the final costs agree within 5.8e-09 relative; time ...\n"
+    )
+    committed_log(
+        tmp_path, monkeypatch, run_all.expert_solver_rows, "results/logs/bench_expert_solvers.txt", text
     )
     ((what, measured, ratio, note),) = run_all.expert_solver_rows()
     assert what.startswith("constrained docking expert")
