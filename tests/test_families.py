@@ -152,6 +152,7 @@ def test_train_prints_one_final_metric_appends_one_line_and_is_deterministic(nam
         )
         assert dispersed["mean_terminal_distance"] != first["mean_terminal_distance"]
     assert first["eval_split"] == "search" and "test_split" not in first["datasets"]
+    assert {k: first[k] for k in first["splits"]["search"]} == first["splits"]["search"]  # on top too
     assert {"effort_ratio", "delta_v_ratio", "mean_delta_v"} <= set(first)
 
     # --eval-split test: the same training scored on the sealed split, the search split kept beside it
@@ -161,8 +162,11 @@ def test_train_prints_one_final_metric_appends_one_line_and_is_deterministic(nam
     )  # fmt: skip
     sealed = final_metric(result.stdout)
     assert sealed["eval_split"] == "test" and sealed["best_train_loss"] == first["best_train_loss"]
-    searched = {k: v for k, v in first.items() if k in sealed["search_split"]}
-    assert sealed["search_split"] == searched  # bit for bit: one training, both splits
+    assert sealed["splits"]["search"] == first["splits"]["search"]  # bit for bit: one training, both splits
+    assert {k: sealed[k] for k in sealed["splits"]["test"]} == sealed["splits"][
+        "test"
+    ]  # the test split on top
+    assert set(first["splits"]) == {"search"} and set(sealed["splits"]) == {"search", "test"}
     assert sealed[METRICS[name]] != first[METRICS[name]]  # 24 other starts
     assert sealed["datasets"] == {**first["datasets"], "test_split": sealed["datasets"]["test_split"]}
 

@@ -24,6 +24,7 @@ from autoresearch.executors import Executor
 from autoresearch.family import SEARCH, TEST, Family
 from autoresearch.journal import Journal
 from autoresearch.loop.processes import stop_orphaned_run
+from autoresearch.loop.protocol import searched
 from autoresearch.loop.runner import RunResult, load_result, logged_run, run_experiment
 
 
@@ -52,7 +53,7 @@ def trial_row(family: Family, trial: Trial, result: RunResult, eval_split: str =
     record = result.record or {}
     metric, feasible, test = result.metric, (family.is_feasible(record) if result.ok else None), None
     if result.ok and eval_split == TEST:
-        search = record["search_split"]  # checked by the runner
+        search = searched(record)  # checked by the runner
         test = {"metric": metric, "feasible": feasible}
         metric, feasible = float(search[family.metric]), family.is_feasible(search)
     return {

@@ -164,7 +164,7 @@ class CampaignState:
             aux = {
                 k: v
                 for k, v in (record.final_metric or {}).items()
-                if k not in ("run_id", "config", metric_name)
+                if k not in ("run_id", "config", "splits", metric_name)  # splits: the search split, on top
             }
             item.update(feasible=feasible, verdict=record.verdict, auxiliary=aux)
         self.history_full.append(item)

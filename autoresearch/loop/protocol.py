@@ -104,12 +104,19 @@ def check_split(record: dict[str, Any], metric: str, eval_split: str) -> str | N
     if said != eval_split:
         return f"FINAL_METRIC says it was scored on the {said!r} split, but the run asked for {eval_split!r}"
     if eval_split == TEST:
-        search = record.get("search_split")
+        search = searched(record)
         if not isinstance(search, dict):
-            return "FINAL_METRIC of an --eval-split test run has no 'search_split' object"
+            return "FINAL_METRIC of an --eval-split test run has no 'splits' object with a 'search' one"
         if check_record({**search, "run_id": record["run_id"]}, metric, record["run_id"])[1] is not None:
-            return f"FINAL_METRIC search_split has no finite primary metric {metric!r}"
+            return f"FINAL_METRIC splits.search has no finite primary metric {metric!r}"
     return None
+
+
+def searched(record: dict[str, Any]) -> Any:
+    """The search split's metrics of a test-scored record: under ``splits``, or, in a record written
+    before that, ``search_split``."""
+    splits = record.get("splits")
+    return splits.get(SEARCH) if isinstance(splits, dict) else record.get("search_split")
 
 
 def parse_progress(line: str, metric: str) -> dict[str, Any] | None:

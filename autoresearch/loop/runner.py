@@ -12,7 +12,7 @@ and prints exactly one valid ``FINAL_METRIC:`` line; stdout is read in bounded m
 
 ``eval_split="test"`` (the audit, for a family with a sealed test split) adds ``--eval-split
 test``: the record is then scored on the test split and must carry the search split's metrics of
-the same run under ``search_split``. A search run whose record says it saw the test split fails.
+the same run under ``splits``. A search run whose record says it saw the test split fails.
 
 A train.py may also print ``PROGRESS: {"step": <int>, "<metric>": <number>}`` lines (family
 contract, optional). They are read from the run's stdout file as they come, by the thread that

@@ -93,7 +93,7 @@ def main() -> int:
     scores = train(CONFIG, args.seed)
     if args.eval_split == "test":
         search = {"loss": scores["loss"], "feasible": scores["feasible"]}
-        scores = {**scores, "loss": scores["loss"] + TEST_OFFSET, "search_split": search}
+        scores = {**scores, "loss": scores["loss"] + TEST_OFFSET, "splits": {"search": search}}
     record = {
         "run_id": args.run_id,
         **scores,
