@@ -71,13 +71,15 @@ def cone_terms(
     states: np.ndarray, goals: np.ndarray, approach_cone: tuple[float, float]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(in the cone's region, its slack ``a^T (r - g) - cos(theta) ||r - g||`` in m, the angle of
-    ``r - g`` from the axis in degrees), each (N,). Within APEX of the port the angle is 0: there
-    it is round-off, and the slack (which the cost reads) is zero to within its tolerance anyway."""
+    ``r - g`` from the axis in degrees), each (N,). Within APEX of the port the point is at the
+    apex: its angle is 0 and its slack at least 0 (a chaser 2e-7 m off the port, as a controller
+    re-planning from float32 observations ends, is docked, not outside the cone)."""
     half_angle, radius = approach_cone
     offset = states[:, :3] - goals
     distance = np.linalg.norm(offset, axis=1)
     along = np.einsum("ij,ij->i", cone_axis(goals), offset)
     slack = along - np.cos(np.radians(half_angle)) * distance
+    slack = np.where(distance <= APEX, np.maximum(slack, 0.0), slack)
     with np.errstate(invalid="ignore", divide="ignore"):
         cosine = np.where(distance > APEX, along / distance, 1.0)
     angle = np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))

@@ -19,7 +19,15 @@ state is affine in U, ``x_k = A^k x_0 + sum_{j<k} A^{k-1-j} B u_j``, and the ter
   (:mod:`cwh_envs.socp`, Clarabel).
 
 Every returned trajectory is verified (terminal error, box, clearance); anything else raises
-:class:`Infeasible`.
+:class:`Infeasible`. Both experts take a ``warm_start`` (a previous plan's controls over the same
+horizon): receding-horizon MPC (:mod:`cwh_envs.mpc`) re-solves from each state that way.
+
+The soft-terminal experts (:func:`solve_rendezvous_soft`, :func:`soft_docking`) put the terminal
+state into the cost as an exact (L1) penalty instead of an equality, and docking's path constraints
+too (keep-out, speed limit, cone): they label any state, where the hard experts raise
+:class:`Infeasible` (DAgger relabels the states a policy visits, some of which no thrust can bring
+to the target within the box or keep outside the keep-out). Where the hard expert answers and the
+weights exceed its multipliers, the soft one gives the same answer.
 """
 
 from __future__ import annotations
@@ -59,6 +67,14 @@ APPROACH_SHARE = 0.25  # of the horizon: the approach cone's first iterate enter
 RENDEZVOUS_QP_EPS = 1e-6  # proxsuite only has to find the saturation pattern; the polish makes it exact
 POLISH_STEPS = 5
 NEWTON_STEPS = 25  # dual Newton steps before a box-binding rendezvous QP goes to proxsuite
+# The soft-terminal experts' exact penalty w ||D (x_H - x*)||_1, D = diag(1, 1, 1, T, T, T): where the
+# hard expert is feasible and w exceeds its terminal multipliers, the soft one is the same solution
+# (tests/test_experts.py checks it); a velocity error of 1 mm/s weighs as a position error of T mm.
+# Measured: rendezvous starts that ride the thrust box need w > 10 (at 10 they end up to 5 mm off),
+# while the docking SOCP, with the states as variables, resolves w D = 1e5 to only ~3e-3 N.
+SOFT_TERMINAL_WEIGHT = {"rendezvous": 1e3, "docking": 10.0}  # N^2 / m
+SOFT_VELOCITY_SCALE = 10.0  # s
+SOFT_PATH_WEIGHT = 10.0  # N^2 / m (or per m/s): the soft docking expert's price of a broken path constraint
 
 
 class Infeasible(Exception):
@@ -185,12 +201,16 @@ def _openmp_runtime():
 # ----------------------------------------------------------------------------------- rendezvous
 
 
-def solve_rendezvous(x0, problem: RendezvousProblem | None = None, **params) -> tuple[np.ndarray, np.ndarray]:
+def solve_rendezvous(
+    x0, problem: RendezvousProblem | None = None, *, warm_start=None, **params
+) -> tuple[np.ndarray, np.ndarray]:
     """Minimum-energy rendezvous to the origin (Eq. expert_rdzv) from x0 (6,) [m, m/s].
 
     ``params`` override fields of ``problem`` (default ``RendezvousProblem()``). Returns states
     (H+1, 6) and controls (H, 3) [N]. Raises :class:`Infeasible` when no box-feasible thrust
-    brings every state component to within ``reach_tolerance`` of zero.
+    brings every state component to within ``reach_tolerance`` of zero. ``warm_start`` (controls
+    (H, 3) or (3H,)): when the box binds, its saturation pattern is tried first, which settles the
+    exact optimum in one linear solve when the pattern still holds (else the cold path runs).
     """
     problem = resolve_problem(RendezvousProblem, problem, **params)
     x0 = _as_vector("x0", x0, 6)
@@ -198,8 +218,43 @@ def solve_rendezvous(x0, problem: RendezvousProblem | None = None, **params) -> 
     gap = model.terminal_gap(x0, np.zeros(6))
     controls = model.terminal_pinv @ gap
     if np.abs(controls).max() > problem.u_max:
-        controls = _box_constrained_controls(model, gap, controls, problem.u_max)
+        exact = None
+        if warm_start is not None:
+            warm = _as_vector("warm_start", np.ravel(warm_start), 3 * problem.horizon)
+            exact = _kkt_point(model.terminal, gap, warm, problem.u_max)
+        if exact is None:
+            exact = _box_constrained_controls(model, gap, controls, problem.u_max)
+        controls = exact
     return _verified(model, x0, controls, np.zeros(6), problem.u_max, problem.reach_tolerance)
+
+
+def solve_rendezvous_soft(
+    x0, problem: RendezvousProblem | None = None, **params
+) -> tuple[np.ndarray, np.ndarray]:
+    """The soft-terminal rendezvous expert: ``min 1/2 sum ||u_k||^2 + w ||D x_H||_1`` within the
+    thrust box (module docstring), one convex program (:func:`cwh_envs.socp.soft_box_controls`),
+    polished on its saturation pattern as the hard expert's QP answers are. Any start has an
+    answer; where :func:`solve_rendezvous` has one too, it is the same. Returns states (H+1, 6) and
+    controls (H, 3) [N]; ``states[-1]`` says how far from the origin it ends. Raises
+    :class:`Infeasible` only when the solver fails."""
+    problem = resolve_problem(RendezvousProblem, problem, **params)
+    x0 = _as_vector("x0", x0, 6)
+    model = linear_model(problem)
+    gap = model.terminal_gap(x0, np.zeros(6))
+    try:
+        controls = socp.soft_box_controls(model.terminal, gap, problem.u_max, _soft_weights("rendezvous"))
+    except socp.SubproblemFailed as error:
+        raise Infeasible(f"soft-terminal rendezvous: {error}") from error
+    # Where the target is met, the exact optimum is the hard expert's KKT point on this pattern.
+    exact = _kkt_point(model.terminal, gap, controls, problem.u_max)
+    if exact is not None:
+        controls = exact
+    return model.rollout(x0, controls), controls.reshape(problem.horizon, 3)
+
+
+def _soft_weights(task: str) -> np.ndarray:
+    """w D of the soft-terminal penalty, per terminal component (m, then m/s)."""
+    return SOFT_TERMINAL_WEIGHT[task] * np.r_[np.ones(3), np.full(3, SOFT_VELOCITY_SCALE)]
 
 
 def solve_rendezvous_many(x0s, problem: RendezvousProblem | None = None) -> tuple[np.ndarray, ...]:
@@ -305,19 +360,26 @@ def _polish_box_solution(g: np.ndarray, gap: np.ndarray, approx: np.ndarray, u_m
     two steps from the solver's answer). If it does not settle, the solver's tolerance-level answer
     is returned and left to the terminal-error check.
     """
+    exact = _kkt_point(g, gap, approx, u_max)
+    return np.clip(approx, -u_max, u_max) if exact is None else exact
+
+
+def _kkt_point(g: np.ndarray, gap: np.ndarray, approx: np.ndarray, u_max: float) -> np.ndarray | None:
+    """The KKT point of :func:`_polish_box_solution` from the saturation pattern of ``approx``, or
+    None when the pattern does not settle within POLISH_STEPS."""
     pattern = np.where(np.abs(approx) >= u_max * (1.0 - 1e-6), np.sign(approx), 0.0)
     for _ in range(POLISH_STEPS):
         free = pattern == 0.0
         try:
             nu = np.linalg.solve(g[:, free] @ g[:, free].T, gap - g[:, ~free] @ (u_max * pattern[~free]))
         except np.linalg.LinAlgError:
-            break
+            return None
         unclipped = g.T @ nu
         new_pattern = np.where(np.abs(unclipped) > u_max, np.sign(unclipped), 0.0)
         if np.array_equal(new_pattern, pattern):
             return np.where(free, unclipped, u_max * pattern)
         pattern = new_pattern
-    return np.clip(approx, -u_max, u_max)
+    return None
 
 
 def _verified(model, x0, controls, target, u_max, tolerance) -> tuple[np.ndarray, np.ndarray]:
@@ -343,51 +405,39 @@ class DockingSolution(NamedTuple):
     cost: float
 
 
-def solve_docking(x0, goal, problem: DockingProblem | None = None, **params) -> tuple[np.ndarray, np.ndarray]:
+def solve_docking(
+    x0, goal, problem: DockingProblem | None = None, *, warm_start=None, **params
+) -> tuple[np.ndarray, np.ndarray]:
     """Minimum-energy docking around the keep-out (Eq. expert_rpo) from x0 (6,) to goal (3,) [m].
 
     Returns states (H+1, 6) and controls (H, 3) [N]; raises :class:`Infeasible` unless the SCP
     converges to a trajectory with terminal error <= 1e-6, thrust in the box and
     ``||r_k|| >= R + delta - 1e-6`` at every step.
     """
-    solution = scp_docking(x0, goal, problem, **params)
+    solution = scp_docking(x0, goal, problem, warm_start=warm_start, **params)
     return solution.states, solution.controls
 
 
-def scp_docking(x0, goal, problem: DockingProblem | None = None, **params) -> DockingSolution:
+def scp_docking(
+    x0, goal, problem: DockingProblem | None = None, *, warm_start=None, **params
+) -> DockingSolution:
     """:func:`solve_docking` with the SCP diagnostics.
 
     Iterate i solves the convex subproblem with half-spaces ``n_k^T r_k >= R + delta`` where
-    ``n_k = r_k / ||r_k||`` of iterate i-1 (iterate 0: the unconstrained minimum-energy path).
+    ``n_k = r_k / ||r_k||`` of iterate i-1 (iterate 0: the unconstrained minimum-energy path, or
+    ``warm_start``, controls (H, 3) or (3H,) of a previous plan over the same horizon).
     Since ``||r|| >= n^T r`` for a unit n, every subproblem solution clears the sphere, and the
     previous iterate (once feasible) stays feasible for the next subproblem, so the cost never
     rises after the first iterate. Stops when both the largest position change and the relative
     cost change fall below tolerance.
     """
     problem = resolve_problem(DockingProblem, problem, **params)
-    x0 = _as_vector("x0", x0, 6)
-    goal = _as_vector("goal", goal, 3)
-    radius = problem.koz_radius + problem.margin
-    if np.linalg.norm(goal) < radius:
-        raise ValueError(f"goal {goal} lies inside the keep-out radius plus margin ({radius} m)")
-    model = linear_model(problem)
-    target = np.concatenate([goal, np.zeros(3)])
-    gap = model.terminal_gap(x0, target)
-    controls = model.terminal_pinv @ gap
-    positions = model.positions(x0, controls)
+    model, x0, goal, target, gap, radius = _docking_setup(x0, goal, problem)
+    positions = model.positions(x0, model.terminal_pinv @ gap)
     shortfall = radius - np.linalg.norm(positions[~model.controllable], axis=1).min()
     if shortfall > CLEARANCE_TOLERANCE:
         raise Infeasible(f"a position no thrust can move (k = 0, Euler k = 1) is {shortfall:.3g} m inside")
-    if problem.approach_cone is not None:  # start from a path that already arrives along the axis
-        controls = _waypoint_controls(model, x0, gap, goal, problem.approach_cone[1])
-        positions = model.positions(x0, controls)
-    # The speed limit is linearised about the previous iterate, which is sound only once the path
-    # has its final shape: it joins after the keep-out and the cone have converged on their own.
-    stages = [problem.replace(speed_limit=None), problem] if problem.speed_limit is not None else [problem]
-    iteration = 0
-    for stage in stages:
-        controls, positions, iterations = _scp(model, x0, goal, gap, radius, stage, controls, positions)
-        iteration += iterations
+    controls, iteration = _run_scp(model, x0, goal, gap, radius, problem, warm_start, soft=False)
     cost = controls @ controls
     states, controls = _verified(model, x0, controls, target, problem.u_max, TERMINAL_TOLERANCE)
     shortfall = radius - np.linalg.norm(states[:, :3], axis=1).min()
@@ -397,13 +447,72 @@ def scp_docking(x0, goal, problem: DockingProblem | None = None, **params) -> Do
     return DockingSolution(states, controls, iteration, float(cost))
 
 
-def _scp(model, x0, goal, gap, radius, problem, controls, positions) -> tuple[np.ndarray, np.ndarray, int]:
+def soft_docking(
+    x0, goal, problem: DockingProblem | None = None, *, warm_start=None, **params
+) -> DockingSolution:
+    """The soft-terminal docking expert: the SCP of :func:`scp_docking` with every subproblem one SOCP
+    (:mod:`cwh_envs.socp`) in which the terminal state and every path constraint (keep-out, speed
+    limit, approach cone) are exact penalties (module docstring). It answers from states the hard
+    expert cannot (one already in the keep-out's margin, or off the cone); where both answer, they
+    agree. ``states[-1]`` says how far from the docking state it ends. Raises :class:`Infeasible`
+    only when the SCP itself fails."""
+    problem = resolve_problem(DockingProblem, problem, **params)
+    model, x0, goal, _, gap, radius = _docking_setup(x0, goal, problem)
+    controls, iteration = _run_scp(model, x0, goal, gap, radius, problem, warm_start, soft=True)
+    excess = np.abs(controls).max() - problem.u_max
+    if excess > BOX_TOLERANCE:
+        raise Infeasible(f"thrust exceeds u_max by {excess:.3g} N")
+    controls = np.clip(controls, -problem.u_max, problem.u_max)
+    return DockingSolution(
+        model.rollout(x0, controls), controls.reshape(-1, 3), iteration, float(controls @ controls)
+    )
+
+
+def _docking_setup(x0, goal, problem: DockingProblem):
+    x0 = _as_vector("x0", x0, 6)
+    goal = _as_vector("goal", goal, 3)
+    radius = problem.koz_radius + problem.margin
+    if np.linalg.norm(goal) < radius:
+        raise ValueError(f"goal {goal} lies inside the keep-out radius plus margin ({radius} m)")
+    model = linear_model(problem)
+    target = np.concatenate([goal, np.zeros(3)])
+    return model, x0, goal, target, model.terminal_gap(x0, target), radius
+
+
+def _run_scp(model, x0, goal, gap, radius, problem, warm_start, soft: bool) -> tuple[np.ndarray, int]:
+    """Every SCP stage from the first iterate: (controls (3H,), iterations in all).
+
+    A warm start is a plan that already has its final shape, so it goes straight to the whole
+    problem; a cold start begins with the approach cone's waypoint path (if any), and the speed
+    limit, linearised about the previous iterate, joins only after the keep-out and the cone have
+    converged on their own (sound only once the path has its final shape)."""
+    if warm_start is not None:
+        controls = _as_vector("warm_start", np.ravel(warm_start), 3 * model.horizon)
+        stages = [problem]
+    else:
+        controls = model.terminal_pinv @ gap
+        if problem.approach_cone is not None:  # start from a path that already arrives along the axis
+            controls = _waypoint_controls(model, x0, gap, goal, problem.approach_cone[1])
+        stages = (
+            [problem.replace(speed_limit=None), problem] if problem.speed_limit is not None else [problem]
+        )
+    positions = model.positions(x0, controls)
+    iteration = 0
+    for stage in stages:
+        controls, positions, iterations = _scp(model, x0, goal, gap, radius, stage, controls, positions, soft)
+        iteration += iterations
+    return controls, iteration
+
+
+def _scp(
+    model, x0, goal, gap, radius, problem, controls, positions, soft
+) -> tuple[np.ndarray, np.ndarray, int]:
     """SCP iterations from ``controls`` (their ``positions``) to convergence: (controls, positions,
     iterations)."""
     cost = controls @ controls
     for iteration in range(1, SCP_MAX_ITERATIONS + 1):
-        if path_constrained(problem):
-            controls = _path_subproblem(model, x0, goal, positions, radius, problem)
+        if soft or path_constrained(problem):
+            controls = _path_subproblem(model, x0, goal, positions, radius, problem, soft)
         else:
             controls = _halfspace_subproblem(model, x0, gap, positions, radius, problem.u_max)
         new_positions = model.positions(x0, controls)
@@ -476,13 +585,17 @@ def _halfspace_subproblem(model, x0, gap, positions, radius, u_max) -> np.ndarra
     raise Infeasible("constraint generation did not settle")
 
 
-def _path_subproblem(model, x0, goal, positions, radius, problem: DockingProblem) -> np.ndarray:
-    """The subproblem under the speed limit or the approach cone: one second-order-cone program
-    with every keep-out half-space (:mod:`cwh_envs.socp`)."""
+def _path_subproblem(model, x0, goal, positions, radius, problem: DockingProblem, soft: bool) -> np.ndarray:
+    """The subproblem under the speed limit or the approach cone, or of the soft-terminal expert: one
+    second-order-cone program with every keep-out half-space (:mod:`cwh_envs.socp`)."""
     path = socp.PathConstraints.about(positions, goal, problem, _approach_step(model), model.controllable)
-    steps = np.flatnonzero(_keepout_steps(model))
+    keepout = model.controllable if soft else _keepout_steps(model)  # soft: x_H is not pinned to g
+    penalties = socp.Soft(_soft_weights("docking"), SOFT_PATH_WEIGHT) if soft else None
+    steps = np.flatnonzero(keepout)
     try:
-        return socp.solve(model, x0, goal, steps, _keepout_normals(positions), radius, problem.u_max, path)
+        return socp.solve(
+            model, x0, goal, steps, _keepout_normals(positions), radius, problem.u_max, path, penalties
+        )
     except socp.SubproblemFailed as error:
         raise Infeasible(f"constrained subproblem: {error}") from error
 

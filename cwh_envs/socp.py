@@ -1,4 +1,5 @@
-"""The constrained docking SCP's convex subproblem, as one second-order-cone program (Clarabel).
+"""The constrained docking SCP's convex subproblem, as one second-order-cone program (Clarabel);
+also the soft-terminal experts' subproblems (the terminal state as an exact penalty).
 
 Under a speed limit or an approach cone, each SCP iterate of :func:`cwh_envs.experts.scp_docking`
 solves
@@ -87,52 +88,91 @@ class PathConstraints:
         return cls(unit, speed, axis, cosine, held, away, float(radius))
 
 
-def solve(model, x0, goal, keepout_steps, normals, radius, u_max, path: PathConstraints) -> np.ndarray:
+@dataclass(frozen=True)
+class Soft:
+    """Exact (L1) penalty weights: ``terminal`` (6,) per component of ``x_H - (goal, 0)``, and ``path``
+    per metre (m/s for the speed limit) by which any keep-out, ball, speed-limit or cone row is broken.
+    Linear penalties, unlike quadratic ones, need no huge weight (which an interior-point method
+    resolves poorly): where every constraint can be met and the weights exceed their multipliers,
+    the answer is the constrained one."""
+
+    terminal: np.ndarray
+    path: float
+
+
+def solve(
+    model, x0, goal, keepout_steps, normals, radius, u_max, path: PathConstraints, soft: Soft | None = None
+) -> np.ndarray:
     """Controls (3H,) minimising ``||U||^2`` under the dynamics, the terminal state ``(goal, 0)``, the
     thrust box, the keep-out half-spaces ``normals[k]^T r_k >= radius`` at ``keepout_steps`` and the
-    ``path`` constraints. Raises :class:`SubproblemFailed` unless Clarabel reports it solved."""
+    ``path`` constraints. With ``soft`` every constraint but the dynamics and the box is an exact
+    penalty instead (:class:`Soft`), so that any state has an answer. Raises
+    :class:`SubproblemFailed` unless Clarabel reports it solved."""
     horizon = model.horizon
     columns = 6 * (horizon + 1) + 3 * horizon
+    away = np.flatnonzero(path.away)
+    speed_steps = np.arange(1, horizon + 1) if path.speed is not None else np.arange(0)
+    held = np.flatnonzero(path.held)
+    counts = [len(keepout_steps), len(away), len(speed_steps), len(held)]  # one slack per row or cone
+    # Columns: states, controls, then with ``soft`` the terminal slacks (6) and the path slacks.
+    total = columns + (6 + sum(counts) if soft else 0)
+    slack_columns = np.split(columns + 6 + np.arange(sum(counts)), np.cumsum(counts)[:-1])
     equality, box = _fixed_rows(model)
     target = np.concatenate([goal, np.zeros(3)])
-    blocks = [equality, box]
-    rhs = [np.concatenate([x0, np.zeros(6 * horizon), target]), np.full(6 * horizon, u_max)]
-    # Nonnegative rows: keep-out half-spaces, then the port's ball.
-    blocks.append(_position_rows(keepout_steps, -normals[keepout_steps], columns))
+    equality_rhs = np.concatenate([x0, np.zeros(6 * horizon), target])
+    if soft:
+        equality, equality_rhs = equality[:-6], equality_rhs[:-6]
+    blocks = [_widen(equality, total), _widen(box, total)]
+    rhs = [equality_rhs, np.full(6 * horizon, u_max)]
+    # Nonnegative rows: keep-out half-spaces, then the port's ball (each + its slack).
+    blocks.append(
+        _slackened(_position_rows(keepout_steps, -normals[keepout_steps], total), slack_columns[0], 1, soft)
+    )
     rhs.append(np.full(len(keepout_steps), -radius))
-    away = np.flatnonzero(path.away)
-    blocks.append(_position_rows(away, -path.unit[away], columns))
+    blocks.append(_slackened(_position_rows(away, -path.unit[away], total), slack_columns[1], 1, soft))
     rhs.append(-path.radius - path.unit[away] @ goal)
+    if soft:  # the terminal slacks bound |x_H - target|; the path slacks are >= 0
+        blocks.append(_penalty_rows(horizon, columns, total))
+        rhs.append(np.concatenate([target, -target]))
+        path_slacks = columns + 6 + np.arange(sum(counts))
+        blocks.append(
+            sparse.csr_matrix(
+                (-np.ones(len(path_slacks)), (np.arange(len(path_slacks)), path_slacks)),
+                shape=(len(path_slacks), total),
+            )
+        )
+        rhs.append(np.zeros(len(path_slacks)))
     nonnegative = sum(block.shape[0] for block in blocks[1:])
-    socs = 0
     if path.speed is not None:  # t = v0 + v1 m^T (r_k - g) >= ||v_k||
         v0, v1 = path.speed
-        steps = np.arange(1, horizon + 1)
-        unit = path.unit[steps]
-        blocks.append(_cone_rows(steps, -v1 * unit, -1.0, 3, columns))
-        rhs.append(_cone_rhs(v0 - v1 * unit @ goal, np.zeros((len(steps), 3))))
-        socs += len(steps)
-    held = np.flatnonzero(path.held)
+        unit = path.unit[speed_steps]
+        blocks.append(
+            _slackened(_cone_rows(speed_steps, -v1 * unit, -1.0, 3, total), slack_columns[2], 4, soft)
+        )
+        rhs.append(_cone_rhs(v0 - v1 * unit @ goal, np.zeros((len(speed_steps), 3))))
     if len(held):  # t = a^T (r_k - g) >= cos ||r_k - g||
-        blocks.append(_cone_rows(held, np.broadcast_to(-path.axis, (len(held), 3)), -path.cosine, 0, columns))
+        head = np.broadcast_to(-path.axis, (len(held), 3))
+        blocks.append(_slackened(_cone_rows(held, head, -path.cosine, 0, total), slack_columns[3], 4, soft))
         rhs.append(
             _cone_rhs(
                 np.full(len(held), -path.axis @ goal), np.broadcast_to(-path.cosine * goal, (len(held), 3))
             )
         )
-        socs += len(held)
     rows = sparse.vstack(blocks, format="csc")
     cones = [clarabel.ZeroConeT(equality.shape[0]), clarabel.NonnegativeConeT(nonnegative)]
-    cones += [clarabel.SecondOrderConeT(4)] * socs
+    cones += [clarabel.SecondOrderConeT(4)] * (len(speed_steps) + len(held))
     settings = clarabel.DefaultSettings()
     settings.verbose = False
-    solver = clarabel.DefaultSolver(
-        _cost(model), np.zeros(columns), rows, np.concatenate(rhs), cones, settings
-    )
+    cost, linear = _cost(model), np.zeros(total)
+    if soft:
+        cost = sparse.block_diag([cost, sparse.csc_matrix((total - columns, total - columns))], format="csc")
+        linear[columns : columns + 6] = soft.terminal
+        linear[columns + 6 :] = soft.path
+    solver = clarabel.DefaultSolver(cost, linear, rows, np.concatenate(rhs), cones, settings)
     solution = solver.solve()
     if solution.status != clarabel.SolverStatus.Solved:
         raise SubproblemFailed(f"Clarabel: {solution.status}")
-    return np.asarray(solution.x)[6 * (horizon + 1) :]
+    return np.asarray(solution.x)[6 * (horizon + 1) : columns]
 
 
 @lru_cache(maxsize=4)  # LinearModel hashes by identity, and the model itself is cached
@@ -157,6 +197,56 @@ def _fixed_rows(model) -> tuple[sparse.csr_matrix, sparse.csr_matrix]:
     identity = sparse.eye(3 * horizon)
     box = sparse.hstack([sparse.csr_matrix((6 * horizon, states)), sparse.vstack([identity, -identity])])
     return equality, box.tocsr()
+
+
+def soft_box_controls(terminal: np.ndarray, gap: np.ndarray, u_max: float, terminal_weights) -> np.ndarray:
+    """Controls U (n,) minimising ``1/2 ||U||^2 + sum_i w_i |terminal U - gap|_i`` within the box
+    ``|U| <= u_max``: the soft-terminal rendezvous expert on the condensed model (``terminal`` is G,
+    (6, n)), the same exact penalty as :func:`solve` with ``terminal_weights``."""
+    size = terminal.shape[1]
+    identity, slack = sparse.eye(size), -sparse.eye(6)
+    rows = sparse.vstack(
+        [
+            sparse.hstack([identity, sparse.csr_matrix((size, 6))]),
+            sparse.hstack([-identity, sparse.csr_matrix((size, 6))]),
+            sparse.hstack([sparse.csr_matrix(terminal), slack]),
+            sparse.hstack([sparse.csr_matrix(-terminal), slack]),
+        ],
+        format="csc",
+    )
+    rhs = np.concatenate([np.full(2 * size, u_max), gap, -gap])
+    cost = sparse.diags(np.r_[np.ones(size), np.zeros(6)], format="csc")
+    linear = np.r_[np.zeros(size), terminal_weights]
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    cones = [clarabel.NonnegativeConeT(len(rhs))]
+    solution = clarabel.DefaultSolver(cost, linear, rows, rhs, cones, settings).solve()
+    if solution.status != clarabel.SolverStatus.Solved:
+        raise SubproblemFailed(f"Clarabel: {solution.status}")
+    return np.clip(np.asarray(solution.x)[:size], -u_max, u_max)
+
+
+def _widen(block: sparse.csr_matrix, columns: int) -> sparse.csr_matrix:
+    """``block`` with zero columns appended up to ``columns``."""
+    return sparse.csr_matrix((block.data, block.indices, block.indptr), shape=(block.shape[0], columns))
+
+
+def _slackened(block: sparse.csr_matrix, slacks: np.ndarray, every: int, soft) -> sparse.csr_matrix:
+    """``block`` with its slack added to every ``every``-th row (each row, or each cone's head):
+    ``b - A x + s`` in place of ``b - A x``. Unchanged without ``soft``."""
+    if not soft or len(slacks) == 0:
+        return block
+    heads = every * np.arange(len(slacks))
+    return block + sparse.csr_matrix((-np.ones(len(slacks)), (heads, slacks)), shape=block.shape)
+
+
+def _penalty_rows(horizon: int, columns: int, total: int) -> sparse.csr_matrix:
+    """The 12 rows ``b - A x = s -+ (x_H - target)`` of the terminal penalty (its slacks right after
+    ``columns``)."""
+    pick = np.arange(6)
+    terminal = sparse.csr_matrix((np.ones(6), (pick, 6 * horizon + pick)), shape=(6, total))
+    slack = sparse.csr_matrix((np.ones(6), (pick, columns + pick)), shape=(6, total))
+    return sparse.vstack([terminal - slack, -terminal - slack], format="csr")
 
 
 @lru_cache(maxsize=4)

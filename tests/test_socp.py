@@ -64,7 +64,7 @@ def test_under_the_cone_and_speed_limit_the_socp_agrees_with_tangent_plane_cuts(
     else:
         problem, solution = PROBLEM, experts.scp_docking(x0, goal, cone_only)
         positions, cuts.previous = solution.states[:, :3], solution.controls.ravel()
-    conic = experts._path_subproblem(model, x0, goal, positions, RADIUS, problem)
+    conic = experts._path_subproblem(model, x0, goal, positions, RADIUS, problem, False)
     polyhedral = cuts(model, x0, goal, positions, RADIUS, problem)
     assert abs(conic @ conic - polyhedral @ polyhedral) <= 1e-6 * (polyhedral @ polyhedral)
     assert np.abs(conic - polyhedral).max() < 1e-4  # N, against thrusts of ~0.1 N
@@ -95,4 +95,4 @@ def test_a_subproblem_no_thrust_in_the_box_can_meet_is_infeasible_by_name(start)
     model = experts.linear_model(problem)
     _, positions = anchor_of(model, x0, goal)
     with pytest.raises(experts.Infeasible, match=r"constrained subproblem: Clarabel: \w*Infeasible"):
-        experts._path_subproblem(model, x0, goal, positions, RADIUS, problem)
+        experts._path_subproblem(model, x0, goal, positions, RADIUS, problem, False)

@@ -1,0 +1,120 @@
+"""Receding-horizon MPC: the task's own optimal-control expert, re-solved at every step.
+
+At step k, with m = H - k steps to go, :class:`RecedingHorizon` solves the expert of its problem
+from the observed state over the remaining m steps (the problem with ``horizon=m``), warm-started
+from its previous plan shifted by one step, and applies the first control:
+
+- rendezvous: the box-constrained minimum-energy QP (:func:`cwh_envs.experts.solve_rendezvous`; the
+  warm start is the previous plan's saturation pattern);
+- docking: the keep-out SCP (:func:`cwh_envs.experts.scp_docking`, linearised about the previous
+  plan), with the speed limit and the approach cone as second-order cones when the problem has them.
+
+On the nominal model the tail of an optimal plan is optimal for the rest (Bellman), so MPC flies
+the open-loop expert's trajectory; what it adds is feedback when the model or the state is off.
+
+**A re-solve that fails** (the expert raises :class:`~cwh_envs.experts.Infeasible`: no box thrust
+reaches the target from the observed state, or the SCP does not converge) is counted in
+``infeasible`` and the controller applies the next control of its previous plan, which was feasible
+for the state that plan predicted; with no plan left it applies the closed-form law
+(:class:`cwh_envs.controllers.MinEnergyFeedback`), counted in ``fallbacks``. **The last step**
+(m = 1) needs no solve: under Euler no thrust moves the final position, and the law's one-step
+least-squares control is the only candidate (the experts need a horizon of at least 2).
+
+**Plans are tightened** against the float32 rounding of the observed state (about 1e-6 m): the
+approach cone's radius grows by RADIUS_MARGIN, so that a planned point just outside the port's ball
+does not land inside it, off the cone (measured: a plan on the ball's surface did, on 2 of 3
+starts). The speed limit and the cone's angle are already solved tighter (:mod:`cwh_envs.socp`).
+
+It is a policy on observations like the others: ``mpc = RecedingHorizon(problem)``, then
+``mpc(obs)`` for (N, obs_dim) or (obs_dim,); a row whose observed time-to-go is 1 starts a new
+episode (its plan is dropped). The observation is float32, so the state it re-plans from is rounded
+to about 1e-7 relative. ``solve_seconds`` keeps each row's solve time (model set-up excluded: the
+condensed model of each remaining horizon is built once per step for the whole batch).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from cwh_envs import experts
+from cwh_envs.controllers import MinEnergyFeedback
+from cwh_envs.observations import DOCKING_OBS_DIM
+from cwh_envs.problems import DockingProblem, RendezvousProblem
+
+RADIUS_MARGIN = 1e-3  # m, added to the approach cone's radius in every plan
+
+
+class RecedingHorizon:
+    """Receding-horizon MPC on a :class:`RendezvousProblem` or :class:`DockingProblem` (module docstring).
+
+    Counters, per row of the batch it was last called with (reset when a row starts an episode):
+    ``solves``, ``infeasible`` (failed re-solves) and ``fallbacks`` (steps flown by the closed-form
+    law for want of a plan); ``solve_seconds`` lists every solve's wall time.
+    """
+
+    def __init__(self, problem: RendezvousProblem | DockingProblem) -> None:
+        if not isinstance(problem, RendezvousProblem | DockingProblem):
+            raise ValueError(
+                f"problem must be a RendezvousProblem or DockingProblem, got {type(problem).__name__}"
+            )
+        self.problem = problem
+        self.planned = problem
+        if isinstance(problem, DockingProblem) and problem.approach_cone is not None:
+            half_angle, radius = problem.approach_cone
+            self.planned = problem.replace(approach_cone=(half_angle, radius + RADIUS_MARGIN))
+        self.law = MinEnergyFeedback(problem)
+        self.solve_seconds: list[float] = []
+        self._resize(0)
+
+    def _resize(self, rows: int) -> None:
+        self.plans: list[np.ndarray | None] = [None] * rows
+        self.solves = np.zeros(rows, dtype=np.int64)
+        self.infeasible = np.zeros(rows, dtype=np.int64)
+        self.fallbacks = np.zeros(rows, dtype=np.int64)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        obs = np.asarray(obs)
+        single = obs.ndim == 1
+        batch = np.atleast_2d(obs).astype(np.float64)
+        docking = isinstance(self.problem, DockingProblem)
+        if batch.shape[-1] != (DOCKING_OBS_DIM if docking else DOCKING_OBS_DIM - 3):
+            raise ValueError(f"observations of width {batch.shape[-1]} do not fit this problem")
+        if len(batch) != len(self.plans):
+            self._resize(len(batch))
+        horizon = self.problem.horizon
+        steps_to_go = np.rint(batch[:, -1] * horizon).astype(np.int64)
+        thrust = self.law.thrust(batch)  # m = 1, and the fallback
+        for row in np.flatnonzero(steps_to_go == horizon):  # a new episode
+            self.plans[row] = None
+            self.solves[row] = self.infeasible[row] = self.fallbacks[row] = 0
+        for row in np.flatnonzero(steps_to_go >= 2):
+            thrust[row] = self._replan(row, batch[row], int(steps_to_go[row]), docking)
+        for row in np.flatnonzero(steps_to_go < 2):
+            self.plans[row] = None
+        actions = np.clip(thrust / self.problem.u_max, -1.0, 1.0)
+        return actions[0] if single else actions
+
+    def _replan(self, row: int, obs: np.ndarray, steps_to_go: int, docking: bool) -> np.ndarray:
+        plan = self.plans[row]
+        warm = plan[1:] if plan is not None and len(plan) == steps_to_go + 1 else None
+        problem = self.planned.replace(horizon=steps_to_go)
+        experts.linear_model(problem)  # built once per remaining horizon, outside the timed solve
+        self.solves[row] += 1
+        started = time.perf_counter()
+        try:
+            if docking:
+                _, controls = experts.solve_docking(obs[:6], obs[6:9], problem, warm_start=warm)
+            else:
+                _, controls = experts.solve_rendezvous(obs[:6], problem, warm_start=warm)
+        except experts.Infeasible:
+            self.infeasible[row] += 1
+            controls = warm
+        finally:
+            self.solve_seconds.append(time.perf_counter() - started)
+        self.plans[row] = controls
+        if controls is None:
+            self.fallbacks[row] += 1
+            return self.law.thrust(obs)
+        return controls[0]
