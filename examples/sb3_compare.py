@@ -73,7 +73,13 @@ def parse_args() -> argparse.Namespace:
         "a family without one gets a BC policy trained now by its train.py with the defaults",
     )
     parser.add_argument("--eval-points", type=int, default=8, help="evaluations along each SB3 run")
-    parser.add_argument("--out", type=Path, default=Path("results/sb3_compare"))
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where the results go (default results/sb3_compare; with --smoke, runs/sb3_compare_smoke, "
+        "so that a plumbing check never overwrites the committed results)",
+    )
     parser.add_argument(
         "--tensorboard", default=None, metavar="DIR", help="TensorBoard log dir (if installed)"
     )
@@ -93,6 +99,8 @@ def parse_args() -> argparse.Namespace:
     )
     parser.add_argument("--smoke", action="store_true", help="512 steps, shrunken rollouts: a plumbing check")
     args = parser.parse_args()
+    if args.out is None:
+        args.out = Path("runs/sb3_compare_smoke" if args.smoke else "results/sb3_compare")
     if args.smoke:
         args.timesteps = args.sac_timesteps = 512
     if args.start_pool is None:
@@ -105,17 +113,21 @@ def parse_args() -> argparse.Namespace:
     unknown = set(args.problems) - set(PROBLEMS)
     if unknown:
         parser.error(f"unknown problems {sorted(unknown)}; choose from {list(PROBLEMS)}")
-    if any(item.partition("=")[0] not in ("rendezvous", "docking") for item in args.bc_policy):
-        parser.error("--bc-policy takes rendezvous=PATH or docking=PATH")
+    families = sorted({problem["family"] for problem in PROBLEMS.values()})
+    if any(item.partition("=")[0] not in families for item in args.bc_policy):
+        parser.error(f"--bc-policy takes FAMILY=PATH with FAMILY one of {families}")
     return args
 
 
 # Each problem: the family whose metric scores it, the env SB3 trains on, and whether the CBF filter
-# sits between the policy and the dynamics (in training and in the evaluation alike).
+# sits between the policy and the dynamics (in training and in the evaluation alike). The constrained
+# env takes the family's speed limit and approach cone (its PROBLEM) as keyword arguments, and its
+# filter is the multi-constraint one.
 PROBLEMS = {
     "rendezvous": dict(family="rendezvous", env_id="cwh_envs:CWHRendezvous-v0", cbf=False),
     "docking": dict(family="docking", env_id="cwh_envs:CWHDockKOZ-v0", cbf=False),
     "docking+cbf": dict(family="docking", env_id="cwh_envs:CWHDockKOZ-v0", cbf=True),
+    "docking-constrained+cbf": dict(family="docking-constrained", env_id="cwh_envs:CWHDockKOZ-v0", cbf=True),
 }
 
 # Hyperparameters written the way rl-baselines3-zoo writes hyperparams/ppo.yml and sac.yml for
@@ -192,6 +204,8 @@ HYPERPARAMS = {
         ),
     },
 }
+HYPERPARAMS["ppo"]["docking-constrained"] = HYPERPARAMS["ppo"]["docking"]
+HYPERPARAMS["sac"]["docking-constrained"] = HYPERPARAMS["sac"]["docking"]
 # --smoke only proves the plumbing: rollouts and warm-up shrunk to fit 512 steps.
 SMOKE = {
     "ppo": dict(n_envs=2, n_steps=64, batch_size=64, n_epochs=2),
@@ -319,14 +333,25 @@ def training_envs(problem: dict, family, n_envs: int, args):
     """The monitored SB3 VecEnv of ``n_envs`` training envs; with the CBF for docking+cbf (the
     family's margin, as CBFSafetyFilter's default)."""
     pool = {"start_pool": args.start_pool} if args.start_pool else {}
+    limits = {
+        k: getattr(family.PROBLEM, k)
+        for k in ("speed_limit", "approach_cone")
+        if getattr(family.PROBLEM, k, None)
+    }
     if args.vec_env == "dummy":
         wrapper = CBFSafetyFilter if problem["cbf"] else None
         return make_vec_env(
-            problem["env_id"], n_envs=n_envs, seed=args.seed, env_kwargs=pool, wrapper_class=wrapper
+            problem["env_id"],
+            n_envs=n_envs,
+            seed=args.seed,
+            env_kwargs={**pool, **limits},
+            wrapper_class=wrapper,
         )
     cbf = {"cbf_margin": family.PROBLEM.margin} if problem["cbf"] else {}
     # SB3's algorithms read only is_success (and the terminal observation) from the infos.
-    envs = NativeVecEnv(problem["env_id"], n_envs, seed=args.seed, info_keys=("is_success",), **pool, **cbf)
+    envs = NativeVecEnv(
+        problem["env_id"], n_envs, seed=args.seed, info_keys=("is_success",), **pool, **cbf, **limits
+    )
     return VecMonitor(envs)
 
 
