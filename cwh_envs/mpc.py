@@ -13,12 +13,18 @@ On the nominal model the tail of an optimal plan is optimal for the rest (Bellma
 the open-loop expert's trajectory; what it adds is feedback when the model or the state is off.
 
 **A re-solve that fails** (the expert raises :class:`~cwh_envs.experts.Infeasible`: no box thrust
-reaches the target from the observed state, or the SCP does not converge) is counted in
-``infeasible`` and the controller applies the next control of its previous plan, which was feasible
-for the state that plan predicted; with no plan left it applies the closed-form law
+reaches the target from the observed state, the state already breaks a constraint no thrust can
+undo in time, or the SCP does not converge) is counted in ``infeasible``, and the soft-terminal
+expert re-plans from the same state instead (:func:`~cwh_envs.experts.solve_rendezvous_soft`,
+:func:`~cwh_envs.experts.soft_docking`: the terminal state and every path constraint as exact
+penalties, so it gets as close as it can), counted in ``soft``. Should that fail too, the
+controller applies the next control of its previous plan, or with none the closed-form law
 (:class:`cwh_envs.controllers.MinEnergyFeedback`), counted in ``fallbacks``. **The last step**
 (m = 1) needs no solve: under Euler no thrust moves the final position, and the law's one-step
 least-squares control is the only candidate (the experts need a horizon of at least 2).
+
+Flown over the states another policy visits, in time order, it is DAgger's relabelling expert: its
+action at each state is the expert's first control over the remaining horizon.
 
 **Plans are tightened** against the float32 rounding of the observed state (about 1e-6 m): the
 approach cone's radius grows by RADIUS_MARGIN, so that a planned point just outside the port's ball
@@ -50,8 +56,9 @@ class RecedingHorizon:
     """Receding-horizon MPC on a :class:`RendezvousProblem` or :class:`DockingProblem` (module docstring).
 
     Counters, per row of the batch it was last called with (reset when a row starts an episode):
-    ``solves``, ``infeasible`` (failed re-solves) and ``fallbacks`` (steps flown by the closed-form
-    law for want of a plan); ``solve_seconds`` lists every solve's wall time.
+    ``solves``, ``infeasible`` (failed hard re-solves), ``soft`` (of those, answered by the
+    soft-terminal expert) and ``fallbacks`` (steps flown on the previous plan or the law);
+    ``solve_seconds`` lists every solve's wall time (a soft re-plan's included).
     """
 
     def __init__(self, problem: RendezvousProblem | DockingProblem) -> None:
@@ -72,6 +79,7 @@ class RecedingHorizon:
         self.plans: list[np.ndarray | None] = [None] * rows
         self.solves = np.zeros(rows, dtype=np.int64)
         self.infeasible = np.zeros(rows, dtype=np.int64)
+        self.soft = np.zeros(rows, dtype=np.int64)
         self.fallbacks = np.zeros(rows, dtype=np.int64)
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -88,7 +96,7 @@ class RecedingHorizon:
         thrust = self.law.thrust(batch)  # m = 1, and the fallback
         for row in np.flatnonzero(steps_to_go == horizon):  # a new episode
             self.plans[row] = None
-            self.solves[row] = self.infeasible[row] = self.fallbacks[row] = 0
+            self.solves[row] = self.infeasible[row] = self.soft[row] = self.fallbacks[row] = 0
         for row in np.flatnonzero(steps_to_go >= 2):
             thrust[row] = self._replan(row, batch[row], int(steps_to_go[row]), docking)
         for row in np.flatnonzero(steps_to_go < 2):
@@ -104,17 +112,31 @@ class RecedingHorizon:
         self.solves[row] += 1
         started = time.perf_counter()
         try:
-            if docking:
-                _, controls = experts.solve_docking(obs[:6], obs[6:9], problem, warm_start=warm)
-            else:
-                _, controls = experts.solve_rendezvous(obs[:6], problem, warm_start=warm)
+            controls = _solve(obs, problem, warm, docking, soft=False)
         except experts.Infeasible:
             self.infeasible[row] += 1
-            controls = warm
+            try:
+                controls = _solve(obs, problem, warm, docking, soft=True)
+                self.soft[row] += 1
+            except experts.Infeasible:
+                controls = warm
         finally:
             self.solve_seconds.append(time.perf_counter() - started)
         self.plans[row] = controls
         if controls is None:
             self.fallbacks[row] += 1
             return self.law.thrust(obs)
+        if controls is warm:
+            self.fallbacks[row] += 1
         return controls[0]
+
+
+def _solve(obs: np.ndarray, problem, warm, docking: bool, soft: bool) -> np.ndarray:
+    """The (hard or soft-terminal) expert's controls (m, 3) from the observed state."""
+    if docking:
+        if soft:
+            return experts.soft_docking(obs[:6], obs[6:9], problem, warm_start=warm).controls
+        return experts.solve_docking(obs[:6], obs[6:9], problem, warm_start=warm)[1]
+    if soft:
+        return experts.solve_rendezvous_soft(obs[:6], problem)[1]
+    return experts.solve_rendezvous(obs[:6], problem, warm_start=warm)[1]
