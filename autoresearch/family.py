@@ -23,9 +23,9 @@ from typing import Any
 from autoresearch.direction import Direction
 from autoresearch.editable import EditableError, read_region
 from autoresearch.space import SearchSpace, SpaceError, ValidationError
+from autoresearch.splits import ScoredRun, Split
 
 REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")
-SEARCH, TEST = "search", "test"  # the evaluation splits: selected on, and sealed
 # A family name becomes part of paths (runs/<name>-...): a plain file name, nothing to escape.
 PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
@@ -114,16 +114,21 @@ class Family:
                 f"{directory}: inside the family directory {self.path}; put campaigns and runs outside it"
             )
 
-    def is_feasible(self, record: dict[str, Any]) -> bool:
-        """A run counts as best or as reaching the target only when its feasibility field is true."""
+    def is_feasible(self, metrics: dict[str, Any]) -> bool:
+        """A run counts as best or as reaching the target only when its feasibility field is true (in
+        its FINAL_METRIC object, or in one split's metrics)."""
         field = self.feasibility_field
-        return field is None or record.get(field) is True
+        return field is None or metrics.get(field) is True
 
-    def constraints(self, record: dict[str, Any] | None) -> dict[str, float] | None:
+    def scored(self, final_metric: dict[str, Any]) -> ScoredRun:
+        """What a run scored on each split, read from its valid FINAL_METRIC object."""
+        return ScoredRun.read(final_metric, self.metric, self.is_feasible)
+
+    def constraints(self, final_metric: dict[str, Any] | None) -> dict[str, float] | None:
         """The run's graded constraints (name -> value, <= 0 satisfied) from its constraints field,
-        or None when the family declares none or the record lacks a well-formed one."""
+        or None when the family declares none or its FINAL_METRIC object lacks a well-formed one."""
         field = self.constraints_field
-        values = (record or {}).get(field) if field else None
+        values = (final_metric or {}).get(field) if field else None
         if not isinstance(values, dict) or not values:
             return None
         if not all(_number(v) for v in values.values()):
@@ -211,7 +216,7 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
         isinstance(noise, dict) and _number(noise.get("std")) and noise["std"] >= 0
     ):
         bad("seed_noise", "must be null or an object with a finite 'std' >= 0")
-    for part, name in ((noise, "seed_noise"), ((noise or {}).get(TEST), "seed_noise.test")):
+    for part, name in ((noise, "seed_noise"), ((noise or {}).get(Split.TEST.value), "seed_noise.test")):
         for key in ("mean", "std"):  # read as numbers by the audit and the prompts
             if isinstance(part, dict) and key in part and not _number(part[key]):
                 bad(f"{name}.{key}", "must be a finite number")
@@ -280,7 +285,7 @@ def search_view(registry: dict[str, Any]) -> dict[str, Any]:
     campaign copies and every proposer is shown, so the search never sees what certifies it."""
     view = json.loads(json.dumps(registry))
     if isinstance(view.get("seed_noise"), dict):
-        view["seed_noise"].pop(TEST, None)
+        view["seed_noise"].pop(Split.TEST.value, None)
     view.pop("best", None)
     return view
 

@@ -17,7 +17,7 @@ import json
 import os
 import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -223,3 +223,16 @@ def read_json(path: str | os.PathLike[str]) -> Any:
         raise JournalError(f"{path}: not valid JSON ({err})") from None
     except RecursionError:
         raise JournalError(f"{path}: not valid JSON (nested too deeply)") from None
+
+
+def update_json(path: str | os.PathLike[str], change: Callable[[dict[str, Any]], None]) -> dict[str, Any]:
+    """Read-modify-write the JSON object in ``path`` ({} when absent) under its lock, replacing it
+    atomically: two writers never lose each other's changes. Returns the object as written."""
+    path = Path(path)
+    with _locked(path):
+        data = read_json(path) if path.exists() else {}
+        if not isinstance(data, dict):
+            raise JournalError(f"{path}: must hold a JSON object")
+        change(data)
+        write_json_atomic(path, data)
+    return data

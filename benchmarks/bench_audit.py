@@ -22,7 +22,7 @@ from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import verify
-from autoresearch.executors import Executor, LocalExecutor
+from autoresearch.execution.executors import Executor, LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl, write_json_atomic
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
@@ -73,7 +73,7 @@ def ray_overhead(where: Path, n_tasks: int) -> tuple[float, float, float] | None
         import ray  # noqa: F401  (the optional extra)
     except ImportError:
         return None
-    from autoresearch.ray_executor import RayExecutor
+    from autoresearch.execution.ray_executor import RayExecutor
 
     family = Family.load(where / "family")
     trials = [Trial(f"t{i}", family.baseline_config, i) for i in range(n_tasks)]

@@ -30,7 +30,7 @@ from autoresearch.audit.noise import measure_noise
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import verify
 from autoresearch.campaign import CampaignMeta
-from autoresearch.executors import Executor, LocalExecutor
+from autoresearch.execution.executors import Executor, LocalExecutor
 from autoresearch.family import Family
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
@@ -77,7 +77,7 @@ def campaign_and_audit(family: Family, root: Path, executor: Executor, iters: in
 
 def overhead(family: Family, where: Path, tasks: int) -> dict[str, float]:
     """Seconds per run, one at a time: locally, and on Ray in each file mode."""
-    from autoresearch.ray_executor import RayExecutor
+    from autoresearch.execution.ray_executor import RayExecutor
 
     trials = [Trial(f"t{i}", family.baseline_config, i) for i in range(tasks)]
 
@@ -103,7 +103,7 @@ def main() -> int:
     args = parser.parse_args()
     import ray
 
-    from autoresearch.ray_executor import RayExecutor
+    from autoresearch.execution.ray_executor import RayExecutor
 
     walls = {}
     with tempfile.TemporaryDirectory() as tmp:

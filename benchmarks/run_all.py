@@ -37,14 +37,15 @@ from bench_envs import NATIVE_ENVS, SYNC_ENVS, bench_single, bench_vector
 from bench_experts_cbf import cbf_measure, docking_expert_run, rendezvous_expert_time
 from bench_loop_parallel import campaign_wall
 
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.campaign import BASELINE_PROPOSER, Campaign, Status
+from autoresearch.campaign.audit_log import read_audit
 from autoresearch.compare.inputs import common_family, load_arms, noise_reference, read_repeat
 from autoresearch.compare.stats import best_so_far, experiments_to_target, median_experiments_to_target
 from autoresearch.direction import Direction
+from autoresearch.execution.runner import run_locally
+from autoresearch.execution.spec import RunSpec
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.runner import run_experiment
 from autoresearch.proposers import DEFAULT_SPACE
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -165,15 +166,11 @@ def experiment_row(name: str, overrides: dict[str, Any], label: str, where: Path
     """Wall time of one run of the family's train.py at its baseline plus ``overrides``."""
     family = Family.load(ROOT / "families" / name)
     run_dir = where / f"{name}-{label}"
-    result = run_experiment(
-        family,
-        {**family.baseline_config, **overrides},
-        run_id=f"bench-{label}",
-        seed=family.default_seed,
-        run_dir=run_dir,
-        runs_log=where / "runs.jsonl",
-        timeout=timeout,
+    config = {**family.baseline_config, **overrides}
+    spec = RunSpec(
+        family, config, f"bench-{label}", family.default_seed, run_dir, where / "runs.jsonl", timeout
     )
+    result = run_locally(spec)
     what = f"{label} experiment wall time, {name}"
     config = ", ".join(f"{k}={v}" for k, v in overrides.items())
     if not result.ok:

@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 
 from autoresearch.audit import stats
-from autoresearch.journal import read_json, read_jsonl
+from autoresearch.campaign.audit_log import StepLog
+from autoresearch.journal import read_json
 
 HERE = Path(__file__).resolve().parent
 
@@ -37,9 +38,9 @@ def table(family: str) -> str:
     verify = audit["verify"]
     full = next(c for c in verify["candidates"] if c["config_id"] == verify["promoted"])
     sigma, sigma_r, mu_r = verify["noise"]["std"], full["sigma_r"], full["mu_r"]
-    logged = read_jsonl(campaign / "audit" / "prune" / "prune.jsonl")
-    rows = {r["key"]: r for r in logged if r["status"] == "ok"}
-    failed = {r["key"]: r["status"] for r in logged if r["status"] != "ok" and r["key"] not in rows}
+    logged = StepLog(campaign / "audit" / "prune" / "prune.jsonl").read()
+    rows = {r.key: r for r in logged if r.ok}
+    failed = {r.key: r.status for r in logged if not r.ok and r.key not in rows}
     paired_plan = audit.get("prune_paired_candidate") or audit.get("prune_paired") or {}
     seeds = paired_plan.get("probe_seeds", [])
     n = len(full["changed"])
@@ -66,7 +67,7 @@ def table(family: str) -> str:
             whole = rows.get(f"full-{full['config_id']}-s{seed}")
             if reverted is None or whole is None:
                 break
-            pairs.append((reverted["metric"], whole["metric"]))
+            pairs.append((reverted.scores.search.metric, whole.scores.search.metric))
         if pairs:
             deltas = [
                 stats.paired_loo_delta([r for r, _ in pairs[: k + 1]], [f for _, f in pairs[: k + 1]], sign)

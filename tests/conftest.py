@@ -19,7 +19,7 @@ import tempfile
 import pytest
 from extras import EXTRAS, missing_extras, needs_module, required, skip_or_fail
 
-from autoresearch.executors import keeping_signal_handlers
+from autoresearch.execution.executors import keeping_signal_handlers
 
 _CACHE_ENV = "CWH_ENVS_CACHE"
 _MODULE_NEEDS = re.compile(r"^pytestmark = .*pytest\.mark\.needs\(([^)]*)\)", re.MULTILINE)

@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from autoresearch.executors import Executor
+from autoresearch.execution.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator, Outcome

@@ -7,13 +7,13 @@ import math
 import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, P2, ScriptedProposer, copy_family, run_campaign
 
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.audit.inputs import AuditError, config_id, open_campaign
 from autoresearch.audit.noise import measure_noise
 from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.verify import verify
-from autoresearch.executors import LocalExecutor
+from autoresearch.campaign.audit_log import read_audit
+from autoresearch.execution.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator

@@ -14,7 +14,7 @@ from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.campaign import CampaignError, CampaignMeta, portable_path
 from autoresearch.cli import main
-from autoresearch.executors import LocalExecutor
+from autoresearch.execution.executors import LocalExecutor
 from autoresearch.journal import read_json
 
 KEYS = {"family", "family_name", "proposer", "settings", "created", "sessions", "family_dir"}

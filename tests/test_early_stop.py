@@ -9,10 +9,10 @@ from autoresearch.audit.inputs import AuditedCampaign
 from autoresearch.audit.verify import rank_candidates
 from autoresearch.campaign import Campaign, CampaignState
 from autoresearch.direction import Direction
+from autoresearch.execution.protocol import parse_progress
 from autoresearch.family import Family
 from autoresearch.loop.context import build_context
 from autoresearch.loop.early_stop import EarlyStopper
-from autoresearch.loop.protocol import parse_progress
 from autoresearch.proposers.prompting import render_prompt
 
 # Slow to learn and far from the optimum: a curve clearly worse than the finished runs' at step 1.

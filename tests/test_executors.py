@@ -14,7 +14,8 @@ import pytest
 from audit_support import TOY_FAMILY, copy_family
 
 from autoresearch.audit.trials import Trial, run_trials
-from autoresearch.executors import LocalExecutor, add_executor_arguments, make_executor
+from autoresearch.commands.common import add_executor_arguments, make_executor
+from autoresearch.execution.executors import LocalExecutor
 from autoresearch.journal import read_jsonl
 
 
@@ -73,7 +74,7 @@ def serial_rows(toy, tmp_path_factory):
 
 
 def _metrics(rows):
-    return [(r["key"], r["seed"], r["metric"], r["feasible"]) for r in rows]
+    return [(r.key, r.seed, r.scores.search) for r in rows]
 
 
 def test_pool_results_are_identical_to_serial(toy, serial_rows, tmp_path):
@@ -81,7 +82,7 @@ def test_pool_results_are_identical_to_serial(toy, serial_rows, tmp_path):
         toy, _trials(toy.baseline_config), LocalExecutor(2), tmp_path / "log.jsonl", tmp_path, 60
     )
     assert _metrics(rows) == _metrics(serial_rows)
-    assert all(r["status"] == "ok" for r in rows)
+    assert all(r.ok for r in rows)
     # Six concurrent appenders: every line whole, one per run (train.py's own log too).
     assert sorted(r["key"] for r in read_jsonl(tmp_path / "log.jsonl")) == sorted(t.key for t in _trials({}))
     assert len(read_jsonl(tmp_path / "runs.jsonl")) == 6
@@ -91,7 +92,7 @@ def test_run_trials_skips_logged_runs_and_retries_failures(toy, tmp_path, capsys
     bad = {**toy.baseline_config, "EPOCHS": 0}  # the toy family's failure mode
     trials = [Trial("good", toy.baseline_config, 1), Trial("bad", bad, 1)]
     rows = run_trials(toy, trials, LocalExecutor(2), tmp_path / "log.jsonl", tmp_path, 60)
-    assert [r["status"] for r in rows] == ["ok", "failed"] and "EPOCHS" in rows[1]["reason"]
+    assert [r.status for r in rows] == ["ok", "failed"] and "EPOCHS" in rows[1].reason
     progress = capsys.readouterr().err.splitlines()
     assert progress[0] == "[log] 2 of 2 runs to do"
     assert [line.split()[1] for line in progress[1:]] == ["1/2", "2/2"]  # one line per run, as it ends
@@ -109,13 +110,13 @@ def test_a_logged_key_counts_only_for_the_configuration_it_ran(toy, tmp_path):
     (first,) = run_trials(toy, [Trial("k", toy.baseline_config, 1)], LocalExecutor(1), log, tmp_path, 60)
     other = {**toy.baseline_config, "EPOCHS": 20}
     (second,) = run_trials(toy, [Trial("k", other, 1)], LocalExecutor(1), log, tmp_path, 60)
-    assert second["config"] == other and second["metric"] != first["metric"]
+    assert second.config == other and second.scores.search != first.scores.search
     assert len(read_jsonl(log)) == 2
 
 
 @pytest.mark.slow
 def test_ray_results_are_identical_to_serial(ray_instance, toy, serial_rows, tmp_path):
-    from autoresearch.ray_executor import RayExecutor
+    from autoresearch.execution.ray_executor import RayExecutor
 
     with RayExecutor(workers=2) as executor:
         assert executor.options == {"num_cpus": 1, "num_gpus": 0}  # no GPU on a CPU-only instance

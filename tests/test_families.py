@@ -24,8 +24,8 @@ import pytest
 
 import cwh_envs
 from autoresearch.editable import read_region
+from autoresearch.execution.protocol import parse_progress
 from autoresearch.family import Family
-from autoresearch.loop.protocol import parse_progress
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")

@@ -13,7 +13,7 @@ from autoresearch.audit.inputs import AuditError, open_campaign
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.campaign import BASELINE_PROPOSER
 from autoresearch.cli import main
-from autoresearch.executors import LocalExecutor
+from autoresearch.execution.executors import LocalExecutor
 from autoresearch.journal import read_json, read_jsonl, write_json_atomic
 
 SERIAL = LocalExecutor(1)

@@ -17,13 +17,14 @@ from audit_support import AUDIT_FAMILY, P1, ScriptedProposer, copy_family, run_c
 from loop_helpers import copy_toy
 
 from autoresearch import provenance
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise
-from autoresearch.executors import LocalExecutor
+from autoresearch.campaign.audit_log import read_audit
+from autoresearch.execution.executors import LocalExecutor
+from autoresearch.execution.runner import run_locally
+from autoresearch.execution.spec import RunSpec
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl, write_json_atomic
-from autoresearch.loop.runner import run_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -142,10 +143,9 @@ def test_a_recorded_run_reruns_to_the_same_metric_bit_for_bit(tmp_path, monkeypa
     family = Family.load(family_dir)
     assert provenance.differences(recorded, provenance.collect(family.path)) == []
     monkeypatch.setenv("CWH_ENVS_CACHE", str(cache))
-    again = run_experiment(
-        family, record["config"], run_id="again", seed=record["seed"], run_dir=tmp_path / "again",
-        runs_log=tmp_path / "again.jsonl", timeout=300,
-    )  # fmt: skip
+    again = run_locally(RunSpec(
+        family, record["config"], "again", record["seed"], tmp_path / "again", tmp_path / "again.jsonl", 300
+    ))  # fmt: skip
     assert again.ok and again.metric == record["metric"]
-    assert again.record["datasets"] == record["final_metric"]["datasets"]
-    assert again.record["best_train_loss"] == record["final_metric"]["best_train_loss"]
+    assert again.final_metric["datasets"] == record["final_metric"]["datasets"]
+    assert again.final_metric["best_train_loss"] == record["final_metric"]["best_train_loss"]

@@ -11,14 +11,14 @@ import math
 import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
 
-from autoresearch.audit.auditjson import read_audit, write_step
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise
 from autoresearch.audit.prune import Rule, prune
 from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
+from autoresearch.campaign.audit_log import read_audit, write_step
 from autoresearch.cli import main
-from autoresearch.executors import LocalExecutor
+from autoresearch.execution.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
 

@@ -29,7 +29,7 @@ RAY = str(Path(sys.executable).with_name("ray"))
 
 @pytest.mark.parametrize("files", ["ship", "shared"])
 def test_early_stop_under_ray_decides_as_a_local_loop_does(ray_instance, tmp_path, files):
-    from autoresearch.ray_executor import RayExecutor
+    from autoresearch.execution.ray_executor import RayExecutor
 
     toy = progress_family(tmp_path)
     _, local = run_loop(

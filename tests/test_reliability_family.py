@@ -15,11 +15,11 @@ import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
 from loop_helpers import copy_toy
 
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise
 from autoresearch.campaign import CampaignError, CampaignMeta
-from autoresearch.executors import LocalExecutor
+from autoresearch.campaign.audit_log import read_audit
+from autoresearch.execution.executors import LocalExecutor
 from autoresearch.journal import read_json, write_json_atomic
 
 ROOT = Path(__file__).resolve().parents[1]

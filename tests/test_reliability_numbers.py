@@ -13,11 +13,12 @@ from loop_helpers import TOY_FAMILY, ScriptedProposer, copy_toy, run_loop
 
 from autoresearch.campaign import CampaignMeta
 from autoresearch.campaign.check import check_campaign
+from autoresearch.execution.protocol import check_final_metric, parse_progress
+from autoresearch.execution.runner import run_locally
+from autoresearch.execution.spec import RunSpec
 from autoresearch.family import Family, FamilyError
 from autoresearch.journal import read_jsonl
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
-from autoresearch.loop.protocol import check_record, parse_progress
-from autoresearch.loop.runner import run_experiment
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.tools import PROPOSE
 from autoresearch.space import SearchSpace, SpaceError, ValidationError
@@ -170,9 +171,9 @@ def test_a_final_metric_float_cannot_hold_fails_the_run_and_resume_works(tmp_pat
 
 
 def test_the_adopted_runs_log_line_of_a_huge_metric_is_a_failed_run():
-    value, reason = check_record({"run_id": "a", "loss": HUGE}, "loss", "a")
+    value, reason = check_final_metric({"run_id": "a", "loss": HUGE}, "loss", "a")
     assert value is None and "too large" in reason
-    value, reason = check_record({"run_id": "a", "loss": 0.5, "aux": [{"x": HUGE}]}, "loss", "a")
+    value, reason = check_final_metric({"run_id": "a", "loss": 0.5, "aux": [{"x": HUGE}]}, "loss", "a")
     assert value is None and "too large" in reason and "aux" in reason
 
 
@@ -180,14 +181,7 @@ def test_a_huge_or_too_deep_progress_point_is_ignored(tmp_path):
     toy = _hostile_toy(tmp_path)
     family = Family.load(toy)
     run_dir = tmp_path / "run"
-    result = run_experiment(
-        family,
-        {**family.baseline_config, "EPOCHS": 13},
-        run_id="r",
-        seed=0,
-        run_dir=run_dir,
-        runs_log=tmp_path / "runs.jsonl",
-        timeout=60,
-    )
+    config = {**family.baseline_config, "EPOCHS": 13}
+    result = run_locally(RunSpec(family, config, "r", 0, run_dir, tmp_path / "runs.jsonl", 60))
     assert result.ok and result.progress == [{"step": 3, "value": 0.5}]
     assert parse_progress('PROGRESS: {"step": ' + HUGE_TEXT + ', "loss": 1}', "loss") is None

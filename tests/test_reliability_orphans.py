@@ -17,10 +17,11 @@ import pytest
 from audit_support import ScriptedProposer, run_campaign
 from loop_helpers import copy_toy, processes_naming
 
+from autoresearch.execution import tracking
+from autoresearch.execution.runner import run_locally
+from autoresearch.execution.spec import RunSpec
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop import tracking
-from autoresearch.loop.runner import run_experiment
 
 # Inserted at the top of the toy train.py's main(): with TOY_ESCAPE set, a grandchild leaves the
 # session (os.setsid) and sleeps, and train.py itself moves to the TOY_ESCAPE directory.
@@ -94,14 +95,8 @@ def test_a_setsid_grandchild_does_not_survive_its_run(tmp_path, escape, monkeypa
     monkeypatch.setenv("TOY_ESCAPE", escape["TOY_ESCAPE"])
     family = Family.load(toy)
     run_dir = tmp_path / "runs" / "r1"
-    result = run_experiment(
-        family,
-        family.baseline_config,
-        run_id="r1",
-        seed=0,
-        run_dir=run_dir,
-        runs_log=tmp_path / "runs.jsonl",
-        timeout=60,
+    result = run_locally(
+        RunSpec(family, family.baseline_config, "r1", 0, run_dir, tmp_path / "runs.jsonl", 60)
     )
     assert result.ok, result.reason
     assert _leftovers(tmp_path, settle_s=5) == []  # the grandchild and the watchdog are gone too

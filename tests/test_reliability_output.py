@@ -12,7 +12,7 @@ import textwrap
 import pytest
 from loop_helpers import copy_toy
 
-from autoresearch.loop.protocol import MAX_LINE, StdoutReader, final_metric
+from autoresearch.execution.protocol import MAX_LINE, StdoutReader, read_final_metric
 
 # train.py of the toy copy: TOY_SPAM=lines:N prints N MB of short lines, cr:N prints N MB of
 # carriage-return progress without a newline, err:N prints N MB to stderr and fails; a PROGRESS point
@@ -42,7 +42,8 @@ _DRIVER = textwrap.dedent(
     import json, os, sys
     from pathlib import Path
     from autoresearch.family import Family
-    from autoresearch.loop.runner import run_experiment
+    from autoresearch.execution.runner import run_locally
+    from autoresearch.execution.spec import RunSpec
 
     def peak_kb():
         for line in Path("/proc/self/status").read_text().splitlines():
@@ -51,13 +52,11 @@ _DRIVER = textwrap.dedent(
 
     family = Family.load(sys.argv[1])
     tmp = Path(sys.argv[2])
-    warm = run_experiment(family, family.baseline_config, run_id="warm", seed=0, run_dir=tmp / "warm",
-                          runs_log=tmp / "runs.jsonl", timeout=120)
+    warm = run_locally(RunSpec(family, family.baseline_config, "warm", 0, tmp / "warm", tmp / "runs.jsonl", 120))
     assert warm.ok, warm
     os.environ["TOY_SPAM"] = sys.argv[3]  # the warm-up run printed nothing
     before = peak_kb()
-    result = run_experiment(family, family.baseline_config, run_id="r", seed=0, run_dir=tmp / "r",
-                            runs_log=tmp / "runs.jsonl", timeout=120)
+    result = run_locally(RunSpec(family, family.baseline_config, "r", 0, tmp / "r", tmp / "runs.jsonl", 120))
     print(json.dumps({"growth_mb": (peak_kb() - before) / 1024, "status": result.status,
                       "progress": result.progress, "metric": result.metric, "reason": result.reason}))
     for name in ("stdout.txt", "stderr.txt"):  # tens of MB each
@@ -118,11 +117,13 @@ def test_the_reader_keeps_protocol_lines_across_blocks_and_line_ends(tmp_path):
         out.write(b'\rFINAL_METRIC: {"run_id": "r", "loss": 0.3}')  # the last line, without its end
     reader.finish()
     assert reader.n_finals == 2 and reader.finals == []  # only the first is kept, and it was too long
-    assert final_metric(reader.finals, reader.n_finals, "loss", "r")[2] == (
+    assert read_final_metric(reader.finals, reader.n_finals, "loss", "r")[2] == (
         "2 FINAL_METRIC lines on stdout; exactly one is required"
     )
-    assert final_metric([], 1, "loss", "r")[2] == f"the FINAL_METRIC line is longer than {MAX_LINE} bytes"
+    assert (
+        read_final_metric([], 1, "loss", "r")[2] == f"the FINAL_METRIC line is longer than {MAX_LINE} bytes"
+    )
     path.write_bytes(b'99%\rFINAL_METRIC: {"run_id": "r", "loss": 0.3}')  # the last line needs no end
     reader = StdoutReader(path, "loss", None)
     reader.finish()
-    assert final_metric(reader.finals, reader.n_finals, "loss", "r")[1:] == (0.3, None)
+    assert read_final_metric(reader.finals, reader.n_finals, "loss", "r")[1:] == (0.3, None)

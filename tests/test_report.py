@@ -9,8 +9,8 @@ import struct
 import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
 
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.audit.noise import stale_noise
+from autoresearch.campaign.audit_log import read_audit
 from autoresearch.cli import main
 from autoresearch.family import Family
 from autoresearch.proposers.tpe import TPEProposer

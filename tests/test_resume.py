@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 from loop_helpers import ScriptedProposer, copy_toy, run_loop
 
+from autoresearch.execution.executors import LocalExecutor
+from autoresearch.execution.spec import NO_HOOKS
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop import orchestrator
 from autoresearch.proposers.tpe import TPEProposer
 
 
@@ -141,12 +142,9 @@ def test_kill_9_with_several_runs_in_flight_then_resume(tmp_path):
     assert processes_under(campaign) == []
 
 
-def test_a_runs_log_line_is_adopted_only_with_the_intents_config_and_seed(tmp_path, monkeypatch):
+def test_a_runs_log_line_is_adopted_only_with_the_intents_config_and_seed(tmp_path):
     toy, campaign = copy_toy(tmp_path), tmp_path / "c"
-    crash_during(monkeypatch, "it0003", "before")
-    with pytest.raises(Crash):
-        run_loop(toy, ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}]), campaign, max_iters=4)
-    monkeypatch.undo()
+    crash_at_it0003(toy, campaign, "before", max_iters=4)
     intent = read_json(campaign / "runs" / "it0003" / "intent.json")
     forged = [
         {
@@ -179,36 +177,42 @@ def test_a_campaign_resumed_with_a_larger_cap_runs_up_to_it(tmp_path):
     assert outcome.iterations == 5 and records[-1]["reason"] == "5 iterations reached the cap of 5"
 
 
-def crash_during(monkeypatch, run_id: str, when: str) -> None:
-    """Make the loop die around the run ``run_id``: before it starts, or after it finished."""
-    real = orchestrator.run_experiment
+def crash_at_it0003(toy: Path, campaign: Path, when: str, max_iters: int) -> None:
+    """A scripted campaign whose loop dies around its third run (CrashingExecutor)."""
+    with pytest.raises(Crash):
+        proposer = ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}])
+        run_loop(toy, proposer, campaign, max_iters=max_iters, executor=CrashingExecutor("it0003", when))
 
-    def run_experiment(family, config, **kw):
-        if kw["run_id"] != run_id:
-            return real(family, config, **kw)
-        run_dir = kw["run_dir"]
-        if when == "before, orphan alive":
+
+class CrashingExecutor(LocalExecutor):
+    """Makes the loop die around the run ``run_id``: before it starts, or after it finished."""
+
+    def __init__(self, run_id: str, when: str):
+        super().__init__()
+        self.run_id, self.when = run_id, when
+
+    def run(self, spec, hooks=NO_HOOKS):
+        if spec.run_id != self.run_id:
+            return super().run(spec, hooks)
+        if self.when == "before, orphan alive":
             # A train.py that outlived its supervisor, still running in the run dir.
             sleeper = subprocess.Popen(
-                [sys.executable, "-c", "import time; time.sleep(300)"], cwd=run_dir, start_new_session=True
+                [sys.executable, "-c", "import time; time.sleep(300)"],
+                cwd=spec.run_dir,
+                start_new_session=True,
             )
-            (run_dir / "process.json").write_text(json.dumps({"pid": sleeper.pid}))
-        if when.startswith("after"):
-            real(family, config, **kw)
-            if when == "after, before result.json":
-                (run_dir / "result.json").unlink()
+            (spec.run_dir / "process.json").write_text(json.dumps({"pid": sleeper.pid}))
+        if self.when.startswith("after"):
+            super().run(spec, hooks)
+            if self.when == "after, before result.json":
+                (spec.run_dir / "result.json").unlink()
         raise Crash
-
-    monkeypatch.setattr(orchestrator, "run_experiment", run_experiment)
 
 
 @pytest.mark.parametrize("when", ["after", "after, before result.json", "before", "before, orphan alive"])
-def test_an_iteration_in_flight_is_adopted_or_rerun(tmp_path, monkeypatch, when):
+def test_an_iteration_in_flight_is_adopted_or_rerun(tmp_path, when):
     toy, campaign = copy_toy(tmp_path), tmp_path / "c"
-    crash_during(monkeypatch, "it0003", when)
-    with pytest.raises(Crash):
-        run_loop(toy, ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}]), campaign, max_iters=5)
-    monkeypatch.undo()
+    crash_at_it0003(toy, campaign, when, max_iters=5)
     with open(campaign / "proposals.jsonl", "ab") as f:
         f.write(b'{"iteration": 3, "status": "ra')  # and a torn line from a crash mid-append
     resumed = ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 13}])
@@ -229,16 +233,21 @@ def test_an_iteration_in_flight_is_adopted_or_rerun(tmp_path, monkeypatch, when)
     assert processes_under(campaign) == []
 
 
-def test_tpe_resumed_after_a_crash_asks_what_it_would_have(tmp_path, monkeypatch):
+def test_tpe_resumed_after_a_crash_asks_what_it_would_have(tmp_path):
     toy = copy_toy(tmp_path)
     registry = json.loads((toy / "family.json").read_text())
     _, straight = run_loop(
         toy, TPEProposer(registry, seed=2), tmp_path / "straight", max_iters=12, plateau_window=50
     )
-    crash_during(monkeypatch, "it0012", "before")
     with pytest.raises(Crash):
-        run_loop(toy, TPEProposer(registry, seed=2), tmp_path / "crashed", max_iters=12, plateau_window=50)
-    monkeypatch.undo()
+        run_loop(
+            toy,
+            TPEProposer(registry, seed=2),
+            tmp_path / "crashed",
+            max_iters=12,
+            plateau_window=50,
+            executor=CrashingExecutor("it0012", "before"),
+        )
     _, resumed = run_loop(
         toy, TPEProposer(registry, seed=2), tmp_path / "crashed", max_iters=12, plateau_window=50
     )
@@ -246,12 +255,9 @@ def test_tpe_resumed_after_a_crash_asks_what_it_would_have(tmp_path, monkeypatch
     assert [r["metric"] for r in resumed] == [r["metric"] for r in straight]
 
 
-def test_crash_windows_around_a_retry_and_before_an_intent(tmp_path, monkeypatch):
+def test_crash_windows_around_a_retry_and_before_an_intent(tmp_path):
     toy, campaign = copy_toy(tmp_path), tmp_path / "c"
-    crash_during(monkeypatch, "it0003", "before")
-    with pytest.raises(Crash):
-        run_loop(toy, ScriptedProposer([{"EPOCHS": 11}, {"EPOCHS": 12}]), campaign, max_iters=5)
-    monkeypatch.undo()
+    crash_at_it0003(toy, campaign, "before", max_iters=5)
     # The loop died again right after writing the retry's intent, before marking it0003 interrupted.
     intent = read_json(campaign / "runs" / "it0003" / "intent.json")
     (campaign / "runs" / "it0003-r2").mkdir()

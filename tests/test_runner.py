@@ -8,11 +8,12 @@ from pathlib import Path
 import pytest
 from loop_helpers import copy_toy, snapshot
 
+from autoresearch.execution.processes import stop_orphaned_run
+from autoresearch.execution.protocol import parse_final_metric
+from autoresearch.execution.runner import run_locally, run_prepare_check
+from autoresearch.execution.spec import RunHooks, RunSpec
 from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
-from autoresearch.loop.processes import stop_orphaned_run
-from autoresearch.loop.protocol import parse_final_metric
-from autoresearch.loop.runner import run_experiment, run_prepare_check
 
 HEADER = """# ===== Editable Configuration =====
 X = 1  # a knob
@@ -50,14 +51,9 @@ def mini_family(root: Path, body: str, prepare: str = "import sys; sys.exit(0)\n
 
 
 def run(family: Family, tmp_path: Path, config=None, run_id="r1", timeout=30.0):
-    return run_experiment(
-        family,
-        config or family.baseline_config,
-        run_id=run_id,
-        seed=3,
-        run_dir=tmp_path / "c" / "runs" / run_id,
-        runs_log=tmp_path / "c" / "runs.jsonl",
-        timeout=timeout,
+    run_dir, runs_log = tmp_path / "c" / "runs" / run_id, tmp_path / "c" / "runs.jsonl"
+    return run_locally(
+        RunSpec(family, config or family.baseline_config, run_id, 3, run_dir, runs_log, timeout)
     )
 
 
@@ -75,23 +71,15 @@ def test_toy_run_patches_a_copy_and_parses_the_metric(tmp_path):
     family = Family.load(family_dir)
     config = {**family.baseline_config, "LEARNING_RATE": 0.003, "USE_NORM": True}
     ticks = []
-    result = run_experiment(
-        family,
-        config,
-        run_id="it0001",
-        seed=0,
-        run_dir=tmp_path / "c" / "runs" / "it0001",
-        runs_log=tmp_path / "c" / "runs.jsonl",
-        timeout=30,
-        on_progress=ticks.append,
-    )
+    run_dir, runs_log = tmp_path / "c" / "runs" / "it0001", tmp_path / "c" / "runs.jsonl"
+    result = run_locally(RunSpec(family, config, "it0001", 0, run_dir, runs_log, 30), RunHooks(ticks.append))
     assert result.status == "ok" and result.returncode == 0 and result.reason is None
-    assert result.record["config"] == config and result.metric == result.record["loss"]
+    assert result.final_metric["config"] == config and result.metric == result.final_metric["loss"]
     run_dir = tmp_path / "c" / "runs" / "it0001"
     copy = (run_dir / "train.py").read_text()
     assert "LEARNING_RATE = 0.003  # step size" in copy and "USE_NORM = True  # layer" in copy
     assert (run_dir / "out" / "policy.json").exists() and (run_dir / "result.json").exists()
-    assert read_jsonl(tmp_path / "c" / "runs.jsonl") == [result.record]
+    assert read_jsonl(tmp_path / "c" / "runs.jsonl") == [result.final_metric]
     assert snapshot(family_dir) == before
 
 
@@ -127,7 +115,7 @@ def test_failing_run_reports_stderr(tmp_path):
 )
 def test_metric_line_must_be_exactly_one_valid_record(tmp_path, body, why):
     result = run(mini_family(tmp_path / "fam", body), tmp_path)
-    assert result.status == "failed" and result.record is None and why in result.reason
+    assert result.status == "failed" and result.final_metric is None and why in result.reason
 
 
 def test_good_mini_run_and_its_environment(tmp_path):
@@ -138,8 +126,8 @@ def test_good_mini_run_and_its_environment(tmp_path):
     family = mini_family(tmp_path / "fam", body)
     result = run(family, tmp_path, {"X": 4})
     assert result.status == "ok" and result.metric == 6.0
-    assert result.record["cwd"] == str((tmp_path / "c" / "runs" / "r1").resolve())
-    assert result.record["family"] == str(family.path) and result.record["seed"] == "3"
+    assert result.final_metric["cwd"] == str((tmp_path / "c" / "runs" / "r1").resolve())
+    assert result.final_metric["family"] == str(family.path) and result.final_metric["seed"] == "3"
 
 
 def test_timeout_kills_the_whole_process_group(tmp_path):

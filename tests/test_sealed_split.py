@@ -22,7 +22,6 @@ import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
 from llm_support import chat_reply, messages_reply, tool_use
 
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.audit.inputs import AuditError, config_id, open_campaign
 from autoresearch.audit.noise import measure_noise
 from autoresearch.audit.prune import prune
@@ -30,8 +29,9 @@ from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
 from autoresearch.campaign import CampaignMeta
+from autoresearch.campaign.audit_log import StepLog, read_audit
 from autoresearch.commands.loop import DEFAULTS, build_loop
-from autoresearch.executors import LocalExecutor
+from autoresearch.execution.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
 from autoresearch.loop.context import shown_registry, summarize_random_arm
@@ -39,6 +39,7 @@ from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.base import Proposer
 from autoresearch.proposers.tools import PROPOSE
+from autoresearch.splits import Split
 
 OFFSET = 1000.0
 LEAK = re.compile(r"(?<![\d.])1\d{3}\.\d")  # a number in [1000, 2000) written with decimals
@@ -76,8 +77,11 @@ def test_the_noise_is_measured_on_both_splits_from_the_same_runs(sealed):
     assert noise["test"]["mean"] == pytest.approx(noise["mean"] + OFFSET)
     assert noise["test"]["std"] == pytest.approx(noise["std"])
     assert [v - OFFSET for v in noise["test"]["values"]] == pytest.approx(noise["values"])
-    rows = read_jsonl(root / "audit" / "noise" / "noise.jsonl")
-    assert len(rows) == 4 and all(r["eval_split"] == "test" for r in rows)  # one run, both splits
+    rows = StepLog(root / "audit" / "noise" / "noise.jsonl").read()
+    assert len(rows) == 4 and all(r.split is Split.TEST for r in rows)  # one run, both splits
+    assert [r.on(Split.TEST).metric - OFFSET for r in rows] == pytest.approx(
+        [r.on(Split.SEARCH).metric for r in rows]
+    )
 
 
 def test_verify_gates_and_promotes_on_the_test_split(sealed):

@@ -6,8 +6,8 @@ from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop, stop
 from autoresearch.campaign import Campaign, CampaignState
 from autoresearch.family import Family
 from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, stop_gate
-from autoresearch.loop.verdicts import noise_threshold, plateau, verdict
 from autoresearch.proposers.base import Proposal, Usage
+from autoresearch.verdicts import noise_threshold, plateau, verdict
 
 BAD = Proposal(kind="invalid", error="scripted junk")
 

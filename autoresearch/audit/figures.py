@@ -16,8 +16,8 @@ from matplotlib.ticker import MaxNLocator
 
 from autoresearch.audit.inputs import AuditedCampaign
 from autoresearch.campaign import Campaign, Record, portable_path
+from autoresearch.execution.runner import family_env
 from autoresearch.family import Family
-from autoresearch.loop.runner import family_env
 
 COLORS = {"agent": "#2ca02c", "random": "#1f77b4", "random_matched": "#6baed6", "other": "#ff7f0e"}
 HOOK_TIMEOUT_S = 600.0

@@ -8,10 +8,11 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch import provenance
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, Record
-from autoresearch.family import SEARCH, TEST, Family
+from autoresearch.campaign.audit_log import read_audit
+from autoresearch.family import Family
 from autoresearch.space import canonical_key
+from autoresearch.splits import Split
 
 AUDIT_DIR = "audit"
 
@@ -31,36 +32,46 @@ def changed_params(family: Family, config: dict[str, Any]) -> list[str]:
     return [name for name in family.space.names if config[name] != baseline[name]]
 
 
-def gate_split(family: Family, requested: str | None = None) -> str:
-    """The split the audit gates on: ``requested``, else the sealed test split where the family has
-    one, else the search split (the paper's protocol)."""
-    if requested is None:
-        return TEST if family.has_test_split else SEARCH
-    if requested not in (SEARCH, TEST):
-        raise AuditError(f"--gate-split must be {SEARCH} or {TEST} (got {requested!r})")
-    if requested == TEST and not family.has_test_split:
+def audit_split(family: Family) -> Split:
+    """The split the audit's runs are scored on: the sealed test split where the family has one
+    (the search split comes with it), else the search split."""
+    return Split.TEST if family.has_test_split else Split.SEARCH
+
+
+def gate_split(family: Family, chosen: str | None = None) -> Split:
+    """The split the audit gates on: ``chosen`` (``--gate-split``), else :func:`audit_split` (the
+    search split where the family has no sealed one: the paper's protocol)."""
+    if chosen is None:
+        return audit_split(family)
+    try:
+        split = Split(chosen)
+    except ValueError:
+        raise AuditError(f"--gate-split must be {Split.SEARCH} or {Split.TEST} (got {chosen!r})") from None
+    if split is Split.TEST and not family.has_test_split:
         raise AuditError(
             f"--gate-split test: family {family.name!r} declares no sealed test split (family.json test_split)"
         )
-    return requested
+    return split
 
 
-def has_noise(family: Family, split: str) -> bool:
+def has_noise(family: Family, split: Split) -> bool:
     """Whether the family's seed noise is measured on ``split``."""
     noise = family.seed_noise or {}
-    part = noise.get(TEST) if split == TEST else noise
+    part = noise.get(Split.TEST.value) if split is Split.TEST else noise
     return isinstance(part, dict) and all(isinstance(part.get(k), (int, float)) for k in ("mean", "std", "k"))
 
 
-def seed_noise(family: Family, split: str = SEARCH) -> dict[str, Any]:
+def seed_noise(family: Family, split: Split = Split.SEARCH) -> dict[str, Any]:
     """The family's seed noise on ``split``: {"mean", "std", "k", ...}."""
     if not has_noise(family, split):
-        what = "measured seed noise" if split == SEARCH else "seed noise measured on its sealed test split"
+        what = (
+            "measured seed noise" if split is Split.SEARCH else "seed noise measured on its sealed test split"
+        )
         raise AuditError(
             f"family {family.name!r} has no {what} (mean, std, k) in {family.path / 'family.json'}; "
             f"run `autoresearch noise --family {family.path}` first"
         )
-    return family.seed_noise if split == SEARCH else family.seed_noise[TEST]
+    return family.seed_noise if split is Split.SEARCH else family.seed_noise[Split.TEST.value]
 
 
 @dataclass(frozen=True)

@@ -17,14 +17,16 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import read_audit, set_family_field, write_step
+from autoresearch.audit.auditjson import set_family_field
 from autoresearch.audit.inputs import AuditedCampaign, AuditError
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, at_split, run_trials
+from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.campaign import portable_path
-from autoresearch.executors import Executor
-from autoresearch.family import TEST, Family
+from autoresearch.campaign.audit_log import read_audit, write_step
+from autoresearch.execution.executors import Executor
+from autoresearch.family import Family
 from autoresearch.provenance import family_hashes
+from autoresearch.splits import Score, Split
 
 STEP = "noise"
 PINNED_FILES = ("train.py", "prepare.py")  # the baseline's code and data; program.md is prose
@@ -60,34 +62,18 @@ def measure_noise(
     baseline = family.baseline_config
     trials = [Trial(f"noise-s{seed}", baseline, seed) for seed in seeds]
     rows = run_trials(family, trials, executor, root / "noise.jsonl", root, timeout)
-    ok = [r for r in rows if r["status"] == "ok"]
-    failed = [{"seed": r["seed"], "reason": r["reason"]} for r in rows if r["status"] != "ok"]
+    ok = [r for r in rows if r.ok]
+    failed = [{"seed": r.seed, "reason": r.reason} for r in rows if not r.ok]
     if len(ok) < 2:
         raise AuditError(
             f"seed noise: only {len(ok)} of {k} baseline runs succeeded (K >= 2 needed); "
             f"failures: {failed}; re-run to retry them"
         )
-    floor = stats.noise_floor([r["metric"] for r in ok])
-    sealed = {}
-    if family.has_test_split:
-        test = [at_split(r, TEST) for r in ok]
-        test_floor = stats.noise_floor([value for value, _ in test])
-        sealed = {
-            TEST: {
-                "mean": test_floor.mean,
-                "std": test_floor.std,
-                "k": test_floor.k,
-                "values": [value for value, _ in test],
-                "n_feasible": sum(bool(feasible) for _, feasible in test),
-            }
-        }
+    search = _spread([r.scores.search for r in ok])
+    sealed = {Split.TEST.value: _spread([r.scores.test for r in ok])} if family.has_test_split else {}
     noise = {
-        "mean": floor.mean,
-        "std": floor.std,
-        "k": floor.k,
-        "seeds": [r["seed"] for r in ok],
-        "values": [r["metric"] for r in ok],
-        "n_feasible": sum(bool(r["feasible"]) for r in ok),
+        **search,
+        "seeds": [r.seed for r in ok],
         "metric": family.metric,
         "measured_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "runs_dir": portable_path(root),
@@ -103,6 +89,18 @@ def measure_noise(
             {"status": "done", "source": "measured", **noise, "provenance": campaign.provenance},
         )
     return noise
+
+
+def _spread(scores: list[Score]) -> dict[str, Any]:
+    """The seed noise on one split: Eq. noisefloor over the runs' scores there."""
+    floor = stats.noise_floor([score.metric for score in scores])
+    return {
+        "mean": floor.mean,
+        "std": floor.std,
+        "k": floor.k,
+        "values": [score.metric for score in scores],
+        "n_feasible": sum(score.feasible for score in scores),
+    }
 
 
 def pins(family: Family) -> dict[str, Any]:

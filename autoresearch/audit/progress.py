@@ -8,18 +8,21 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Any, TextIO
+from typing import TextIO
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from autoresearch.campaign.audit_log import TrialRow
 
-def _outcome(row: dict[str, Any]) -> str:
-    if row["status"] != "ok":
-        return f"{row['key']} {row['status']}"
-    feasible = "" if row.get("feasible") in (None, True) else " infeasible"
-    wall = row.get("wall_seconds")
-    return f"{row['key']} {row['metric']:.5g}{feasible}" + (f" ({wall:.0f}s)" if wall is not None else "")
+
+def _outcome(row: TrialRow) -> str:
+    """The row in a few words: its search-split value (what the campaign selected on)."""
+    if not row.ok:
+        return f"{row.key} {row.status}"
+    score, wall = row.scores.search, row.wall_seconds
+    feasible = "" if score.feasible else " infeasible"
+    return f"{row.key} {score.metric:.5g}{feasible}" + (f" ({wall:.0f}s)" if wall is not None else "")
 
 
 class TrialProgress:
@@ -49,7 +52,7 @@ class TrialProgress:
             print(f"[{self.step}] {todo} of {self.total} runs to do", file=self.stream, flush=True)
         return self
 
-    def advance(self, row: dict[str, Any]) -> None:
+    def advance(self, row: TrialRow) -> None:
         self.done += 1
         if self.bar is not None:
             self.bar.update(self.task, advance=1, description=f"last: {_outcome(row)}")

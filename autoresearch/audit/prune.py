@@ -33,14 +33,15 @@ from dataclasses import dataclass
 from typing import Any
 
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import read_audit, update_family, write_step
+from autoresearch.audit.auditjson import update_family
 from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, at_split, run_trials
+from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import assess, is_this_campaign
-from autoresearch.executors import Executor
-from autoresearch.family import SEARCH
-from autoresearch.loop.verdicts import reaches_target
+from autoresearch.campaign.audit_log import TrialRow, read_audit, write_step
+from autoresearch.execution.executors import Executor
+from autoresearch.splits import Split
+from autoresearch.verdicts import reaches_target
 
 STEP = "prune"  # the paper rule's audit.json key; the log and run directories of every rule
 DECIDED_BY = "prune_decided_by"  # audit.json: the key of the rule that ran last (it decides)
@@ -80,19 +81,25 @@ class Rule:
 RULES = tuple(Rule(paired, at) for paired in (False, True) for at in NOISE_AT)
 
 
-def _probe(row: dict[str, Any], split: str) -> dict[str, Any]:
-    metric, feasible = at_split(row, split)
-    return {**{k: row[k] for k in ("seed", "run_id", "status")}, "metric": metric, "feasible": feasible}
+def _probe(row: TrialRow, split: Split) -> dict[str, Any]:
+    score = row.on(split)
+    return {
+        "seed": row.seed,
+        "run_id": row.run_id,
+        "status": row.status,
+        "metric": score and score.metric,
+        "feasible": score and score.feasible,
+    }
 
 
-def _blocked(row: dict[str, Any], full_row: dict[str, Any] | None, split: str) -> str | None:
+def _blocked(row: TrialRow, full_row: TrialRow | None, split: Split) -> str | None:
     """Why a probe cannot be read as a metric change (then the edit is kept), or None."""
-    if row["status"] != "ok":
-        return f"the reverted configuration failed to run ({row['reason']})"
-    if not at_split(row, split)[1]:
+    if not row.ok:
+        return f"the reverted configuration failed to run ({row.reason})"
+    if not row.on(split).feasible:
         return "the reverted configuration is infeasible: the edit carries the constraint"
-    if full_row is not None and full_row["status"] != "ok":
-        return f"the full configuration failed at the paired seed ({full_row['reason']}); re-run to retry"
+    if full_row is not None and not full_row.ok:
+        return f"the full configuration failed at the paired seed ({full_row.reason}); re-run to retry"
     return None
 
 
@@ -103,7 +110,7 @@ def leave_one_out(
     sigma: float,
     probe_seeds: dict[str, list[int]],
     paired: bool = False,
-    split: str = SEARCH,
+    split: Split = Split.SEARCH,
 ) -> dict[str, dict[str, Any]]:
     """Eqs. loo and loodecision for every edit of ``full``: {param: its decision record}.
 
@@ -115,7 +122,7 @@ def leave_one_out(
     config, mu_r, baseline = full["config"], full["mu_r"], family.baseline_config
     root, cid = campaign.step_dir(STEP), full["config_id"]
 
-    def probe(names: list[str], stage: int) -> tuple[list[dict[str, Any]], dict[int, dict[str, Any]]]:
+    def probe(names: list[str], stage: int) -> tuple[list[TrialRow], dict[int, TrialRow]]:
         # Each reversion is followed by the full configuration at its seed, so that a stopped
         # step leaves complete pairs behind (the paper's rule runs no full configuration).
         trials, full_at = [], {}
@@ -126,7 +133,7 @@ def leave_one_out(
                 full_at[seed] = len(trials)
                 trials.append(Trial(f"full-{cid}-s{seed}", config, seed))
         rows = run_trials(family, trials, executor, root / "prune.jsonl", root, campaign.timeout)
-        reverted = [row for row in rows if row["key"].startswith("loo-")]
+        reverted = [row for row in rows if row.key.startswith("loo-")]
         return reverted, {seed: rows[i] for seed, i in full_at.items()}
 
     decisions = {
@@ -145,11 +152,12 @@ def leave_one_out(
         reverted, at_seed = probe(stage, k)
         for name, row in zip(stage, reverted, strict=True):
             d = decisions[name]
-            full_row = at_seed.get(row["seed"])
+            full_row = at_seed.get(row.seed)
             d.setdefault("probes", []).append(_probe(row, split))
             if full_row is not None:
+                full_score = full_row.on(split)
                 d["probes"][-1].update(
-                    full_run_id=full_row["run_id"], full_metric=at_split(full_row, split)[0]
+                    full_run_id=full_row.run_id, full_metric=full_score and full_score.metric
                 )
             d["note"] = _blocked(row, full_row, split)
             if d["note"]:
@@ -210,7 +218,7 @@ def prune(
         return part
     family, sign = campaign.family, campaign.family.direction
     noise = verified["noise"]  # the noise the promotion was judged against, on its split
-    split = verified.get("split", SEARCH)
+    split = Split(verified.get("split", Split.SEARCH))
     full = next(c for c in verified["candidates"] if c["config_id"] == verified["promoted"])
     unit = _unit(rule, noise, full)
     n_seeds = n_seeds or len(verified["seeds"])
@@ -220,7 +228,7 @@ def prune(
     part: dict[str, Any] = {
         "rule": rule.name,
         "paired": rule.paired,
-        "split": split,
+        "split": split.value,
         "unit": unit,
         "promoted": full["config_id"],
         "mu_r": full["mu_r"],

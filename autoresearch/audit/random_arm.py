@@ -27,17 +27,17 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import read_audit, write_step
 from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id, gate_split
-from autoresearch.audit.trials import Trial, at_split, run_trials
+from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.campaign import Campaign, CampaignMeta, CampaignState, Record, Status, portable_path
-from autoresearch.executors import Executor
-from autoresearch.family import SEARCH, TEST
+from autoresearch.campaign.audit_log import read_audit, write_step
+from autoresearch.execution.executors import Executor
 from autoresearch.loop.live import PlainView
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.space import NUMERIC_TYPES
+from autoresearch.splits import Split
 
 MATCHED_AXIS = "training_budget"
 PROPOSER = "random"
@@ -145,19 +145,14 @@ def run_random_arm(
     loop = LoopSettings(PROPOSER, budgets, timeout_per_run=campaign.timeout, workers=executor.workers)
     proposer = RandomProposer(registry, seed, space="random-range")
     view = PlainView(family.metric)
-    Orchestrator(family, proposer, arm.root, loop, view=view, executor=_remote(executor)).run()
+    Orchestrator(family, proposer, arm.root, loop, view=view, executor=executor).run()
     state = arm.state(family)
     part = summarize(campaign, arm.root, state, matched_range, ranges, seed, space)
-    if split == TEST:  # the paper's verdict stays beside the one on the sealed split
+    if split is Split.TEST:  # the paper's verdict stays beside the one on the sealed split
         part["search_verdict"] = {"verdict": part["verdict"], "units": part["units"]}
         part.update(judge_on_test(campaign, executor, state, matched_range))
     write_step(campaign.root, step_name(matched_range), part)
     return part
-
-
-def _remote(executor: Executor) -> Executor | None:
-    """The executor the arm's loop hands its runs to: Ray's; local workers are the loop's own threads."""
-    return executor if executor.name == "ray" else None
 
 
 def judge_on_test(
@@ -176,24 +171,24 @@ def judge_on_test(
     rows = run_trials(family, trials, executor, root / "judge.jsonl", root, campaign.timeout, label="judge")
     judged: dict[str, Any] = {}
     for (side, best), row in zip(sides.items(), rows, strict=True):
-        metric, feasible = at_split(row, TEST)
+        test, search = row.on(Split.TEST), row.on(Split.SEARCH)
         judged[side] = {
             "config_id": config_id(best.config),
-            "run_id": row["run_id"],
-            "status": row["status"],
-            "test_metric": metric,
-            "test_feasible": feasible,
-            "search_metric": row["metric"],
+            "run_id": row.run_id,
+            "status": row.status,
+            "test_metric": test and test.metric,
+            "test_feasible": test and test.feasible,
+            "search_metric": search and search.metric,
             "recorded_search_metric": best.metric,
-            "reproduced": row["status"] == "ok" and row["metric"] == best.metric,
+            "reproduced": row.ok and search.metric == best.metric,
         }
 
     def value(side: str) -> float | None:
         side_part = judged.get(side) or {}
         return side_part.get("test_metric") if side_part.get("test_feasible") else None
 
-    out: dict[str, Any] = {"split": TEST, "judged": judged, "verdict": None, "units": None}
-    sigma = (family.seed_noise or {}).get(TEST, {}).get("std")
+    out: dict[str, Any] = {"split": Split.TEST.value, "judged": judged, "verdict": None, "units": None}
+    sigma = (family.seed_noise or {}).get(Split.TEST.value, {}).get("std")
     if sigma:
         out["verdict"], out["units"] = stats.random_verdict(value("agent"), value("random"), sigma, sign)
     else:
@@ -219,7 +214,7 @@ def summarize(
     agent = campaign.single_seed_best()
     part: dict[str, Any] = {
         "status": "done",
-        "split": SEARCH,
+        "split": Split.SEARCH.value,
         "dir": portable_path(arm_dir),
         "count": sum(r.status.started_a_run for r in state.records),
         "seed": seed,

@@ -12,7 +12,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.audit.figures import (
     COLORS,
     PlottedArm,
@@ -25,6 +24,7 @@ from autoresearch.audit.figures import (
 from autoresearch.audit.inputs import AuditedCampaign, open_campaign
 from autoresearch.audit.prune import DECIDED_BY, RULES
 from autoresearch.campaign import portable_path
+from autoresearch.campaign.audit_log import read_audit
 from autoresearch.family import Family
 
 

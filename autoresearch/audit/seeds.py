@@ -10,8 +10,8 @@ from collections.abc import Collection, Iterable
 from pathlib import Path
 from typing import Any
 
-from autoresearch.audit.auditjson import read_audit
 from autoresearch.campaign import Campaign
+from autoresearch.campaign.audit_log import read_audit
 
 
 def fresh_seeds(used: Iterable[int], n: int) -> list[int]:

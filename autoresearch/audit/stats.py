@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from autoresearch.loop.verdicts import reaches_target
+from autoresearch.verdicts import reaches_target
 
 # Eq. loodecision labels; "escalate" is the intermediate state of the one-seed probe.
 KEEP = "keep"

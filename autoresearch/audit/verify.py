@@ -24,13 +24,15 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import update_family, write_step
+from autoresearch.audit.auditjson import update_family
 from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, gate_split, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, at_split, run_trials
+from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.campaign import Record
-from autoresearch.executors import Executor
-from autoresearch.family import SEARCH, TEST, Family
+from autoresearch.campaign.audit_log import TrialRow, write_step
+from autoresearch.execution.executors import Executor
+from autoresearch.family import Family
+from autoresearch.splits import Split
 
 STEP = "verify"
 
@@ -73,11 +75,11 @@ def split_summary(values: list[float], feasible: list[bool]) -> dict[str, Any]:
 
 
 def assess(
-    rows: list[dict[str, Any]],
+    rows: list[TrialRow],
     source_loss: float | None,
     noise: dict[str, Any],
     sign: int,
-    split: str = SEARCH,
+    split: Split = Split.SEARCH,
 ) -> dict[str, Any]:
     """Parity guard, then Eq. reseedgate and the Welch CI of the mean difference over the valid
     reseeds, on ``split`` (``noise`` is the seed noise measured on it). A reseed that failed to run
@@ -85,33 +87,37 @@ def assess(
     reseeds, valid = [], []
     for row in rows:
         excluded = None
-        if row["status"] != "ok":
-            excluded = f"run {row['status']}: {row['reason']}"
-        elif not stats.parity_guard(row["best_train_loss"], source_loss):
-            excluded = f"parity guard: best_train_loss {row['best_train_loss']:.4g} > 2 x {source_loss:.4g}"
+        if not row.ok:
+            excluded = f"run {row.status}: {row.reason}"
+        elif not stats.parity_guard(row.best_train_loss, source_loss):
+            excluded = f"parity guard: best_train_loss {row.best_train_loss:.4g} > 2 x {source_loss:.4g}"
         else:
             valid.append(row)
-        metric, feasible = at_split(row, split)
+        score = row.on(split)
         reseeds.append(
             {
-                **{k: row[k] for k in ("seed", "run_id", "status", "best_train_loss")},
-                "metric": metric,
-                "feasible": feasible,
+                "seed": row.seed,
+                "run_id": row.run_id,
+                "status": row.status,
+                "best_train_loss": row.best_train_loss,
+                "metric": score and score.metric,
+                "feasible": score and score.feasible,
                 "excluded": excluded,
             }
         )
-        if split != SEARCH:
-            reseeds[-1]["search_metric"] = row["metric"]
-    splits = [SEARCH, TEST] if any(row.get(TEST) for row in valid) else [SEARCH]
+        if split is not Split.SEARCH:
+            search = row.on(Split.SEARCH)
+            reseeds[-1]["search_metric"] = search and search.metric
+    splits = [Split.SEARCH, Split.TEST] if any(row.on(Split.TEST) for row in valid) else [Split.SEARCH]
     by_split = {}
     for name in splits:
-        pairs = [at_split(row, name) for row in valid]
-        by_split[name] = split_summary([v for v, _ in pairs], [bool(f) for _, f in pairs])
-    values = [at_split(row, split)[0] for row in valid]
-    feasible = [bool(at_split(row, split)[1]) for row in valid]
-    n_failed = sum(r["status"] != "ok" for r in rows)
+        scores = [row.on(name) for row in valid]
+        by_split[name.value] = split_summary([s.metric for s in scores], [s.feasible for s in scores])
+    scores = [row.on(split) for row in valid]
+    values, feasible = [s.metric for s in scores], [s.feasible for s in scores]
+    n_failed = sum(not row.ok for row in rows)
     out: dict[str, Any] = {
-        "split": split,
+        "split": split.value,
         "reseeds": reseeds,
         "n": len(values),
         "n_failed": n_failed,
@@ -180,9 +186,9 @@ def _replaces_family_best(
         return True, "replaces this campaign's earlier promotion"
     if current.get("std") is None or (current.get("n") or 0) < 2:
         return True, "the family's previous best was not reseeded"
-    current_split, split = current.get("split", SEARCH), candidate["split"]
+    current_split, split = current.get("split", Split.SEARCH.value), candidate["split"]
     if current_split != split:
-        if split == TEST:
+        if split == Split.TEST.value:
             return True, "the family's previous best was certified on the search split only"
         return False, f"the family's best (from {source}) is certified on the sealed test split"
     sign = family.direction
@@ -242,7 +248,7 @@ def verify(
     candidates = rank_candidates(campaign, top)
     best_run = campaign.single_seed_best()
     part: dict[str, Any] = {
-        "split": split,
+        "split": split.value,
         "sealed_split": family.has_test_split,
         "noise": {k: noise[k] for k in ("mean", "std", "k")},
         "top": top,

@@ -13,8 +13,8 @@ from typing import Any
 from autoresearch.campaign.paths import CampaignError
 from autoresearch.campaign.records import BASELINE_PROPOSER, Record, Status
 from autoresearch.family import Family
-from autoresearch.loop.verdicts import is_better, reaches_target
 from autoresearch.space import canonical_key
+from autoresearch.verdicts import is_better, reaches_target
 
 
 def count_iterations(records: list[Record]) -> int:

@@ -13,18 +13,17 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from autoresearch.campaign.meta import CampaignMeta
 from autoresearch.campaign.paths import CampaignError, CampaignPaths
 from autoresearch.campaign.records import BASELINE_PROPOSER, Record, Status, now
 from autoresearch.campaign.state import CampaignState
+from autoresearch.execution.result import RunResult
+from autoresearch.execution.spec import RunSpec
 from autoresearch.family import Family
 from autoresearch.journal import Journal, JournalError, read_json, read_jsonl, write_json_atomic
-from autoresearch.loop.verdicts import run_verdict
-
-if TYPE_CHECKING:
-    from autoresearch.loop.runner import RunResult
+from autoresearch.verdicts import run_verdict
 
 INTENT = "intent.json"
 INTERRUPTED = "interrupted.json"
@@ -142,6 +141,19 @@ class Campaign:
         """Intents of runs that started but whose iteration was never recorded."""
         return [intent for intent in self.intents() if intent.run_id not in state.run_ids]
 
+    def run_spec(self, family: Family, intent: Intent, timeout: float) -> RunSpec:
+        """The run of ``intent``, in its run directory, logging to the campaign's runs.jsonl."""
+        paths = self.paths
+        return RunSpec(
+            family,
+            intent.config,
+            intent.run_id,
+            intent.seed,
+            paths.run_dir(intent.run_id),
+            paths.runs_log,
+            timeout,
+        )
+
     def mark_interrupted(self, run_id: str, why: str) -> None:
         write_json_atomic(self.paths.run_dir(run_id) / INTERRUPTED, {"time": now(), "reason": why})
 
@@ -190,7 +202,7 @@ class CampaignWriter:
             "progress": result.progress or None,
         }
         if result.ok:
-            feasible = family.is_feasible(result.record)
+            feasible = family.is_feasible(result.final_metric)
             verdict = run_verdict(
                 result.metric,
                 feasible=feasible,
@@ -203,7 +215,7 @@ class CampaignWriter:
                 status=Status.RAN,
                 metric=result.metric,
                 feasible=feasible,
-                final_metric=result.record,
+                final_metric=result.final_metric,
                 verdict=verdict,
                 best_so_far=state.best_after(result.metric, feasible),
             )

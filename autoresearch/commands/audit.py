@@ -13,6 +13,7 @@ from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import (
+    add_executor_arguments,
     add_provenance_argument,
     describe_noise,
     opened,
@@ -22,9 +23,8 @@ from autoresearch.commands.common import (
 from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import print_verify
-from autoresearch.executors import add_executor_arguments
-from autoresearch.family import SEARCH, TEST
 from autoresearch.loop.campaign_lock import CampaignLock
+from autoresearch.splits import Split
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -50,7 +50,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--arm", action="append", type=Path, default=[], help="another arm to plot (repeatable)")
     p.add_argument(
         "--gate-split",
-        choices=(SEARCH, TEST),
+        choices=[split.value for split in Split],
         help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
         "test split where the family has one, else search; search is the paper's protocol)",
     )
@@ -71,7 +71,9 @@ def run(args: argparse.Namespace) -> int:
         campaign = opened(args.campaign, args)
         family = campaign.family
         split = gate_split(family, args.gate_split)
-        measured = has_noise(family, SEARCH) and (not family.has_test_split or has_noise(family, TEST))
+        measured = has_noise(family, Split.SEARCH) and (
+            not family.has_test_split or has_noise(family, Split.TEST)
+        )
         stale = stale_noise(family) if measured else []
         if measured and not args.force and not stale:
             noise = record_existing_noise(campaign)

@@ -10,11 +10,11 @@ from autoresearch.audit.inputs import AuditError, open_campaign, provenance_repo
 from autoresearch.campaign import CampaignError
 from autoresearch.campaign.check import check_campaign
 from autoresearch.commands import SUMMARIES
+from autoresearch.execution.runner import run_prepare_check
 from autoresearch.family import FamilyError, family_problems, find_family_dir
 from autoresearch.journal import JournalError
 from autoresearch.loop import repeats
 from autoresearch.loop.campaign_lock import holder, not_a_directory
-from autoresearch.loop.runner import run_prepare_check
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -1,4 +1,4 @@
-"""What the audit commands share: the execution flags and one error-to-exit-code policy."""
+"""What the commands share: the execution flags, and one error-to-exit-code policy."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ from pathlib import Path
 from autoresearch.audit.inputs import AuditError, open_campaign, provenance_report
 from autoresearch.campaign import CampaignError
 from autoresearch.campaign.check import audit_problems
-from autoresearch.executors import Executor, make_executor
+from autoresearch.execution.executors import Executor, LocalExecutor
+from autoresearch.execution.processes import interruptible_runs
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
-from autoresearch.loop.processes import interruptible_runs
 
 # Exit statuses (docs/autoresearch-loop.md, docs/audit.md); 1 is kept for a failed prepare.py --check
 # (loop) and a campaign with problems (check), 130 for an interrupt.
@@ -31,6 +31,36 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
     return value
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags every command that runs training runs shares."""
+    group = parser.add_argument_group("execution")
+    group.add_argument("--workers", type=int, default=1, help="runs in flight at once (default 1)")
+    group.add_argument("--executor", choices=("local", "ray"), default="local", help="default local")
+    group.add_argument("--ray-address", default=None, help="existing Ray cluster; default a local instance")
+    group.add_argument("--cpus-per-task", type=float, default=1, help="Ray: CPUs one run reserves")
+    group.add_argument(
+        "--gpus-per-task", type=float, default=None, help="Ray: GPUs one run reserves (default 1 if any)"
+    )
+    group.add_argument(
+        "--ray-files",
+        choices=("ship", "shared"),
+        default="ship",
+        help="Ray: ship the family to the workers and the run's files back (default), or read and write "
+        "them in place on a filesystem every node sees",
+    )
+
+
+def make_executor(args: argparse.Namespace, kind: str | None = None, workers: int | None = None) -> Executor:
+    """The executor the flags choose (``kind`` and ``workers`` override theirs, e.g. as a campaign saved
+    them); Ray is imported only when chosen."""
+    kind, workers = kind or args.executor, workers or args.workers
+    if kind != "ray":
+        return LocalExecutor(workers)
+    from autoresearch.execution.ray_executor import RayExecutor  # imports ray
+
+    return RayExecutor(args.ray_address, workers, args.cpus_per_task, args.gpus_per_task, args.ray_files)
 
 
 def add_provenance_argument(parser: argparse.ArgumentParser) -> None:

@@ -15,8 +15,8 @@ from typing import Any
 from autoresearch import provenance
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, portable_path, session
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import error_exit
-from autoresearch.executors import Executor, add_executor_arguments, make_executor, ray_executor
+from autoresearch.commands.common import add_executor_arguments, error_exit, make_executor
+from autoresearch.execution.executors import Executor
 from autoresearch.extras import require
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError, read_json
@@ -283,13 +283,6 @@ def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
     return family, proposer, loop
 
 
-def _executor(args: argparse.Namespace, settings: dict[str, Any]) -> Executor | None:
-    """The Ray executor of ``--executor ray`` (None: local threads, no executor needed)."""
-    if settings["executor"] != "ray":
-        return None
-    return ray_executor(args, settings["workers"])
-
-
 @contextmanager
 def _cluster_for_repeats(executor: Executor) -> Iterator[None]:
     """Under Ray, each repeat's loop (a process of its own) runs its tasks on the group's cluster:
@@ -329,7 +322,7 @@ def run(args: argparse.Namespace) -> int:
         family.check_outside(root)
         lock = CampaignLock(root, "loop", create=True).acquire()  # one process per campaign
         meta.write(root)
-        executor = _executor(args, meta.settings)
+        executor = make_executor(args, meta.settings["executor"], meta.settings["workers"])
         feed = _feed(meta.settings, family, root)
     except (UsageError, FamilyError, CampaignError, ValueError, ImportError, RuntimeError, OSError) as err:
         return error_exit("loop", err)

@@ -8,8 +8,7 @@ from pathlib import Path
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import default_noise_dir, measure_noise
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import describe_noise, positive_int, run_command
-from autoresearch.executors import add_executor_arguments
+from autoresearch.commands.common import add_executor_arguments, describe_noise, positive_int, run_command
 from autoresearch.family import resolve_family
 from autoresearch.loop.campaign_lock import CampaignLock
 

@@ -6,8 +6,13 @@ import argparse
 
 from autoresearch.audit.prune import NOISE_AT, Rule, prune
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
-from autoresearch.executors import add_executor_arguments
+from autoresearch.commands.common import (
+    add_executor_arguments,
+    add_provenance_argument,
+    opened,
+    positive_int,
+    run_command,
+)
 from autoresearch.loop.campaign_lock import CampaignLock
 
 

@@ -8,8 +8,13 @@ from pathlib import Path
 
 from autoresearch.audit.random_arm import default_arm_dir, run_random_arm
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
-from autoresearch.executors import add_executor_arguments
+from autoresearch.commands.common import (
+    add_executor_arguments,
+    add_provenance_argument,
+    opened,
+    positive_int,
+    run_command,
+)
 from autoresearch.family import resolve_family
 from autoresearch.loop.campaign_lock import CampaignLock
 from autoresearch.space import SPACES

@@ -6,10 +6,15 @@ import argparse
 
 from autoresearch.audit.verify import verify
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import add_provenance_argument, opened, positive_int, run_command
-from autoresearch.executors import add_executor_arguments
-from autoresearch.family import SEARCH, TEST
+from autoresearch.commands.common import (
+    add_executor_arguments,
+    add_provenance_argument,
+    opened,
+    positive_int,
+    run_command,
+)
 from autoresearch.loop.campaign_lock import CampaignLock
+from autoresearch.splits import Split
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -26,7 +31,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=positive_int, default=10, help="fresh seeds per candidate (default 10)")
     p.add_argument(
         "--gate-split",
-        choices=(SEARCH, TEST),
+        choices=[split.value for split in Split],
         help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
         "test split where the family has one, else search; search is the paper's protocol)",
     )
@@ -36,12 +41,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def print_verify(part: dict) -> None:
-    split = part.get("split", SEARCH)
+    split = Split(part.get("split", Split.SEARCH))
     for c in part["candidates"]:
         if "mu_r" in c:
             sd = "n/a" if c["sigma_r"] is None else f"{c['sigma_r']:.3g}"
-            other = (c.get("by_split") or {}).get(SEARCH if split == TEST else TEST)
-            gap = f" (search split {other['mu_r']:.6g})" if split == TEST and other else ""
+            search = (c.get("by_split") or {}).get(Split.SEARCH.value)
+            gap = f" (search split {search['mu_r']:.6g})" if split is Split.TEST and search else ""
             print(
                 f"  {c['config_id']}: {split} split {c['mu_r']:.6g} +- {sd} (n={c['n']}){gap}, "
                 f"m = {c['margin']:.2f}: {c['reason']}"

@@ -39,7 +39,10 @@ from autoresearch.campaign import (
     Status,
 )
 from autoresearch.campaign.store import RUNNING_BEST, running_best_entry
-from autoresearch.executors import Executor
+from autoresearch.execution.executors import Executor, LocalExecutor
+from autoresearch.execution.result import RunResult
+from autoresearch.execution.runner import run_prepare_check
+from autoresearch.execution.spec import RunHooks
 from autoresearch.family import Family, search_view
 from autoresearch.journal import repair_torn_tail
 from autoresearch.loop import recovery
@@ -47,7 +50,6 @@ from autoresearch.loop.asking import Halt, ask
 from autoresearch.loop.context import build_context, summarize_random_arm
 from autoresearch.loop.early_stop import EarlyStopper
 from autoresearch.loop.live import View
-from autoresearch.loop.runner import RunResult, run_experiment, run_prepare_check
 from autoresearch.loop.scheduler import Scheduler
 from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, stop_gate
 from autoresearch.proposers.base import Proposal, Proposer, RunOutcome
@@ -93,9 +95,10 @@ def run_id_for(iteration: int, attempt: int = 1) -> str:
 
 
 class Orchestrator:
-    """One campaign's loop. ``executor`` (a Ray executor) runs each experiment as a remote task;
-    without one, runs are supervised by threads of this process. ``on_record`` hears every record
-    once written (e.g. autoresearch.optuna_journal.LiveFeed)."""
+    """One campaign's loop. ``executor`` runs each experiment (by default on this machine; a Ray
+    executor runs it as a remote task), each supervised by a thread of this process when
+    ``settings.workers`` > 1. ``on_record`` hears every record once written (e.g.
+    autoresearch.optuna_journal.LiveFeed)."""
 
     def __init__(
         self,
@@ -111,7 +114,7 @@ class Orchestrator:
         self.proposer = proposer
         self.settings = settings
         self.view = view or View()
-        self.executor = executor
+        self.executor = executor or LocalExecutor()
         self.on_record = on_record
         self.campaign = Campaign(campaign_dir)
         self.state = CampaignState(family)  # the fold of the records, once _open has read them
@@ -169,7 +172,7 @@ class Orchestrator:
             recovery.retire(self.campaign, intent, "superseded by a later attempt or record of its iteration")
         reruns = []
         for intent in live:
-            result = recovery.adopt(self.campaign, self.family, intent)
+            result = recovery.adopt(self.campaign, self.family, intent, self.settings.timeout_per_run)
             if result is None:
                 reruns.append(intent)
             else:
@@ -370,18 +373,13 @@ class Orchestrator:
 
     def _execute(self, intent: Intent) -> RunResult:
         run_id = intent.run_id
-        run = self.executor.run_experiment if self.executor is not None else run_experiment
-        return run(
-            self.family,
-            intent.config,
-            run_id=run_id,
-            seed=intent.seed,
-            run_dir=self.campaign.paths.run_dir(run_id),
-            runs_log=self.campaign.paths.runs_log,
-            timeout=self.settings.timeout_per_run,
+        hooks = RunHooks(
             on_progress=lambda elapsed: self.view.run_progress(elapsed, run_id),
             on_report=self.stopper.start(run_id) if self.stopper else None,
             cancel=self.scheduler.cancel,  # set as the loop unwinds: every run in flight is killed
+        )
+        return self.executor.run(
+            self.campaign.run_spec(self.family, intent, self.settings.timeout_per_run), hooks
         )
 
     def _drain(self) -> None:

@@ -1,7 +1,7 @@
 """Finishing the iterations a dead loop left in flight (``loop --resume``).
 
 Every intent without a record is finished: what is left of its run is killed (every process
-carrying its run directory, wherever it moved: autoresearch.loop.tracking), then its outcome is
+carrying its run directory, wherever it moved: autoresearch.execution.tracking), then its outcome is
 adopted from ``result.json`` (the runner's verdict) or from the run's line in runs.jsonl (train.py
 finished, with the intent's config and seed), or it is recorded as timed out (still running past
 its deadline, or killed there by its watchdog); otherwise it is re-run under a new run id
@@ -12,20 +12,21 @@ run id is recorded twice.
 from __future__ import annotations
 
 from autoresearch.campaign import Campaign, CampaignState, Intent
+from autoresearch.execution.processes import stop_orphaned_run
+from autoresearch.execution.result import RunResult, load_result
+from autoresearch.execution.runner import logged_run
 from autoresearch.family import Family
-from autoresearch.loop.processes import stop_orphaned_run
-from autoresearch.loop.runner import RunResult, load_result, logged_run
 
 
-def adopt(campaign: Campaign, family: Family, intent: Intent) -> RunResult | None:
+def adopt(campaign: Campaign, family: Family, intent: Intent, timeout: float) -> RunResult | None:
     """The outcome of an in-flight run whose supervisor died, if it finished or ran out of time
     (past its deadline at resume, or killed there by its watchdog); None otherwise."""
-    run_dir = campaign.paths.run_dir(intent.run_id)
-    leftover = stop_orphaned_run(run_dir)  # first: nothing of it may write beside a re-run
-    result = load_result(run_dir)
+    spec = campaign.run_spec(family, intent, timeout)
+    leftover = stop_orphaned_run(spec.run_dir)  # first: nothing of it may write beside a re-run
+    result = load_result(spec.run_dir)
     if result is not None:
         return result
-    logged = logged_run(family, campaign.paths.runs_log, intent.run_id, intent.config, intent.seed)
+    logged = logged_run(spec)
     if logged is not None:
         return logged
     if leftover.overdue is not None:

@@ -35,7 +35,7 @@ from autoresearch.campaign import (
     count_iterations,
     portable_path,
 )
-from autoresearch.executors import Executor
+from autoresearch.execution.executors import Executor
 from autoresearch.family import Family
 from autoresearch.journal import JournalError, read_json, write_json_atomic
 

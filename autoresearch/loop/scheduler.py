@@ -3,7 +3,7 @@
 With one worker a run is executed in the calling thread; with more, each run has a supervising
 thread of its own and reports back through a queue, so the loop can propose while runs train.
 ``cancel`` (set when the loop unwinds: Ctrl-C, SIGTERM, a bug) kills every run in flight, whoever
-executes it (autoresearch.loop.runner kills its process group; a Ray task is cancelled).
+executes it (autoresearch.execution.runner kills its process group; a Ray task is cancelled).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import threading
 from collections.abc import Callable, Iterator
 
 from autoresearch.campaign import Intent
-from autoresearch.loop.runner import RunResult
+from autoresearch.execution.result import RunResult
 
 Outcome = tuple[Intent, RunResult]
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from autoresearch.campaign import CampaignState
-from autoresearch.loop.verdicts import plateau
+from autoresearch.verdicts import plateau
 
 GATE_MIN_EXPERIMENTS = 6
 GATE_MIN_AXES = 4

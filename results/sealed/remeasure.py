@@ -16,17 +16,19 @@ import json
 import sys
 from pathlib import Path
 
-from autoresearch.audit.auditjson import read_audit, update_family
+from autoresearch.audit.auditjson import update_family
 from autoresearch.audit.inputs import config_id, open_campaign, seed_noise
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import assess
-from autoresearch.executors import LocalExecutor
-from autoresearch.family import SEARCH, TEST, Family
-from autoresearch.journal import read_jsonl
+from autoresearch.campaign.audit_log import StepLog, TrialRow, read_audit
+from autoresearch.execution.executors import LocalExecutor
+from autoresearch.family import Family
+from autoresearch.splits import Split
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
 TIMEOUT_S = 3600.0  # none of the committed runs came near it
+SEARCH, TEST = Split.SEARCH.value, Split.TEST.value  # the keys of remeasure.json
 
 
 def recipes() -> list[dict]:
@@ -87,8 +89,8 @@ def main() -> int:
             family, trials, executor, root / "trials.jsonl", root, TIMEOUT_S, label=recipe["name"]
         )
         by = {
-            split: assess(rows, recipe["source_loss"], seed_noise(family, split), sign, split)
-            for split in (SEARCH, TEST)
+            split.value: assess(rows, recipe["source_loss"], seed_noise(family, split), sign, split)
+            for split in Split
         }
         keep = ("mu_r", "sigma_r", "n", "n_feasible", "margin", "passed", "reason", "bound")
         results.append(
@@ -109,18 +111,12 @@ def main() -> int:
     return 0
 
 
-def _change(log: Path, config: dict, rows: list[dict]) -> float | None:
+def _change(log: Path, config: dict, rows: list[TrialRow]) -> float | None:
     """The largest |search value now - committed value| over the seeds: the reruns reproduce the
     committed trainings (the same data, bit for bit) and evaluate them through the env's core, whose
     batch-invariant step rounds differently from the families' old batched matmul in the last bits."""
-    committed = {
-        r["seed"]: r["metric"] for r in read_jsonl(log) if r.get("config") == config and r["status"] == "ok"
-    }
-    changes = [
-        abs(r["metric"] - committed[r["seed"]])
-        for r in rows
-        if r["status"] == "ok" and r["seed"] in committed
-    ]
+    committed = {r.seed: r.scores.search.metric for r in StepLog(log).read() if r.config == config and r.ok}
+    changes = [abs(r.scores.search.metric - committed[r.seed]) for r in rows if r.ok and r.seed in committed]
     return max(changes) if changes else None
 
 

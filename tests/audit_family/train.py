@@ -91,12 +91,14 @@ def main() -> int:
     args = parser.parse_args()
     time.sleep(float(os.environ.get("AUDIT_SLEEP_S", "0")))
     scores = train(CONFIG, args.seed)
+    splits = {"search": {"loss": scores["loss"], "feasible": scores["feasible"]}}
     if args.eval_split == "test":
-        search = {"loss": scores["loss"], "feasible": scores["feasible"]}
-        scores = {**scores, "loss": scores["loss"] + TEST_OFFSET, "splits": {"search": search}}
+        splits["test"] = {"loss": scores["loss"] + TEST_OFFSET, "feasible": scores["feasible"]}
     record = {
         "run_id": args.run_id,
         **scores,
+        **splits[args.eval_split],
+        "splits": splits,
         "eval_split": args.eval_split,
         "seed": args.seed,
         "config": CONFIG,

@@ -12,11 +12,11 @@ the campaign.
   to the driver, whose early-stop pruner answers before train.py's next point is read, exactly as
   for a local run. The driver's wait loop feeds the live view.
 - **Nothing outlives its task.** A run started by a task dies with the task's worker (its watchdog
-  watches the worker: autoresearch.loop.tracking), and a cancelled task kills its run's process
+  watches the worker: autoresearch.execution.tracking), and a cancelled task kills its run's process
   group (a KeyboardInterrupt in the task). A worker dies with its job, so kill -9 of the driver ends
   every run; ``--resume`` then re-runs them.
 - **Many tasks** (``map``, the local executor's) run on driver threads, ``workers`` at a time: each
-  is a function that may start runs through :meth:`RayExecutor.run_experiment`, so the audit's
+  is a function that may start runs through :meth:`RayExecutor.run`, so the audit's
   bookkeeping (what ran already, its logs) stays on the driver too; an interrupt cancels every
   run in flight before the threads are joined.
 """
@@ -30,20 +30,17 @@ import shutil
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from autoresearch.executors import (
-    CANCEL_GRACE_S,
-    CANCEL_POLL_S,
-    LocalExecutor,
-    keeping_signal_handlers,
-)
+from autoresearch.execution.executors import CANCEL_GRACE_S, CANCEL_POLL_S, Executor, keeping_signal_handlers
+from autoresearch.execution.result import RESULT_FILE, RunResult
+from autoresearch.execution.runner import run_locally
+from autoresearch.execution.spec import NO_HOOKS, RunHooks, RunSpec
 from autoresearch.extras import require
-from autoresearch.family import SEARCH, Family, own_file
+from autoresearch.family import Family, own_file
 from autoresearch.journal import append_line, write_json_atomic
-from autoresearch.loop.runner import RunResult, run_experiment
 
 FILE_MODES = ("ship", "shared")
 # What of a family directory is not shipped: what its own runs leave there.
@@ -52,7 +49,7 @@ MAX_SHIPPED_BYTES = 64 * 2**20  # a family above this belongs on a shared filesy
 TAIL_BYTES = 256 * 2**10  # of stdout.txt and stderr.txt, brought back from the worker
 # Run files not sent back: about the worker's processes (nothing to adopt), and the result, which
 # travels as the task's value and is written last.
-NOT_SENT_BACK = ("process.json", "watchdog.json", "result.json")
+NOT_SENT_BACK = ("process.json", "watchdog.json", RESULT_FILE)
 REMOTE_FILE = "remote.json"  # in the driver's run directory: the node, worker and directory of the run
 DECISION_TIMEOUT_S = 120.0  # a worker waits this long for the driver's early-stop answer, then trains on
 
@@ -114,43 +111,37 @@ def _collect(run_dir: Path) -> dict[str, bytes]:
     return files
 
 
-def remote_run(spec: dict[str, Any], shipped: dict[str, bytes] | None, channel: Any) -> dict[str, Any]:
-    """One run, on a Ray worker (module-level, so Ray pickles it by reference)."""
+def remote_run(
+    spec: RunSpec, digest: str | None, shipped: dict[str, bytes] | None, decide: bool, channel: Any
+) -> dict[str, Any]:
+    """One run, on a Ray worker (module-level, so Ray pickles it by reference). ``shipped`` is the
+    family's files (an argument of its own, so that Ray resolves their object reference) when they
+    travel with the task; ``decide``: the driver's early-stop pruner answers each PROGRESS point."""
     import ray  # on the worker: ray is there, since it runs this
 
-    run_id = spec["run_id"]
+    run_id = spec.run_id
     scratch = None
     if shipped is not None:
-        family = Family.load(_materialize(spec["digest"], shipped, spec["family_name"]))
         scratch = Path(tempfile.mkdtemp(prefix=f"autoresearch-{run_id}-"))
-        run_dir, runs_log = scratch / "run", scratch / "runs.jsonl"
-    else:
-        family = Family.load(spec["family_path"])
-        run_dir, runs_log = Path(spec["run_dir"]), Path(spec["runs_log"])
+        family = Family.load(_materialize(digest, shipped, spec.family.path.name))
+        spec = replace(spec, family=family, run_dir=scratch / "run", runs_log=scratch / "runs.jsonl")
 
-    where = {"node": ray.util.get_node_ip_address(), "worker_pid": os.getpid(), "run_dir": str(run_dir)}
+    where = {"node": ray.util.get_node_ip_address(), "worker_pid": os.getpid(), "run_dir": str(spec.run_dir)}
     channel.started.remote(run_id, where)
 
     def on_report(step: int, value: float) -> bool:  # the driver's early-stop pruner decides
         return bool(ray.get(channel.report.remote(run_id, step, value)))
 
     try:
-        result = run_experiment(
-            family,
-            spec["config"],
-            run_id=run_id,
-            seed=spec["seed"],
-            run_dir=run_dir,
-            runs_log=runs_log,
-            timeout=spec["timeout"],
-            on_report=on_report if spec["decide"] else None,  # no pruner: nothing to stream
-            eval_split=spec["eval_split"],
-            die_with_supervisor=True,
+        # no pruner: nothing to stream
+        result = run_locally(
+            spec, RunHooks(on_report=on_report if decide else None), die_with_supervisor=True
         )
         if scratch is None:
             return {"result": result.to_json()}
+        runs_log = spec.runs_log
         lines = runs_log.read_bytes().splitlines(keepends=True) if runs_log.exists() else []
-        return {"result": result.to_json(), "files": _collect(run_dir), "log_lines": lines}
+        return {"result": result.to_json(), "files": _collect(spec.run_dir), "log_lines": lines}
     finally:
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
@@ -188,7 +179,7 @@ class _Channel:
             future.set_result(stop)
 
 
-class RayExecutor(LocalExecutor):
+class RayExecutor(Executor):
     """Training runs as Ray tasks (module docstring).
 
     address: an existing cluster ("auto", "host:port" or "ray://host:port"); None connects to the
@@ -267,42 +258,18 @@ class RayExecutor(LocalExecutor):
                 self._shipped[digest] = self._ray.put(files)
             return digest, self._shipped[digest]
 
-    def run_experiment(
-        self,
-        family: Family,
-        config: dict[str, Any],
-        *,
-        run_id: str,
-        seed: int,
-        run_dir: Path,
-        runs_log: Path,
-        timeout: float,
-        on_progress: Callable[[float], None] | None = None,
-        on_report: Callable[[int, float], bool] | None = None,
-        cancel: threading.Event | None = None,
-        eval_split: str = SEARCH,
-    ) -> RunResult:
+    def run(self, spec: RunSpec, hooks: RunHooks = NO_HOOKS) -> RunResult:
         """One run as a Ray task, supervised from this thread; the same contract as
-        :func:`autoresearch.loop.runner.run_experiment`."""
-        ray = self._ray
-        spec = {
-            "run_id": run_id,
-            "config": config,
-            "seed": seed,
-            "timeout": timeout,
-            "eval_split": eval_split,
-            "decide": on_report is not None,
-        }
-        shipped = None
+        :func:`autoresearch.execution.runner.run_locally`."""
+        on_report, on_progress, cancel = hooks.on_report, hooks.on_progress, hooks.cancel
+        ray, run_id, run_dir = self._ray, spec.run_id, spec.run_dir
         if self.files == "ship":
-            spec["digest"], shipped = self._ship(family)
-            spec["family_name"] = family.path.name
-        else:
-            spec.update(
-                family_path=str(family.path), run_dir=str(run_dir.resolve()), runs_log=str(runs_log.resolve())
-            )
+            (digest, shipped), task_spec = self._ship(spec.family), spec
+        else:  # the task reads and writes where the driver would
+            digest, shipped = None, None
+            task_spec = replace(spec, run_dir=run_dir.resolve(), runs_log=spec.runs_log.resolve())
         run_dir.mkdir(parents=True, exist_ok=True)
-        ref = self._remote.remote(spec, shipped, self._channel)
+        ref = self._remote.remote(task_spec, digest, shipped, on_report is not None, self._channel)
         with self._lock:
             self._in_flight.add(ref)
         started = time.monotonic()
@@ -330,13 +297,13 @@ class RayExecutor(LocalExecutor):
                 # run killed from outside is; its files stayed on the worker.
                 reason = f"its Ray worker died ({type(err).__name__}); the run was killed with it"
                 result = RunResult("failed", run_id, None, reason, time.monotonic() - started, None)
-                write_json_atomic(run_dir / "result.json", result.to_json())
+                write_json_atomic(run_dir / RESULT_FILE, result.to_json())
                 return result
         finally:
             with self._lock:
                 self._in_flight.discard(ref)
         if "files" in outcome:
-            self._write_back(run_dir, runs_log, outcome)
+            self._write_back(run_dir, spec.runs_log, outcome)
         return RunResult.from_json(outcome["result"])
 
     @staticmethod
@@ -347,7 +314,7 @@ class RayExecutor(LocalExecutor):
             (run_dir / rel).write_bytes(data)
         for line in outcome["log_lines"]:
             append_line(runs_log, line)
-        write_json_atomic(run_dir / "result.json", outcome["result"])  # last: a resume reads it as finished
+        write_json_atomic(run_dir / RESULT_FILE, outcome["result"])  # last: a resume reads it as finished
 
     def close(self) -> None:
         if self._started:

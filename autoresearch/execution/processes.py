@@ -1,6 +1,6 @@
 """A training run as a process group: started without a shell in its own session, stopped as a
 whole (on timeout, on an interrupt of the caller, after exit), and, after a supervisor died, found
-again and killed without touching an unrelated process (autoresearch.loop.tracking)."""
+again and killed without touching an unrelated process (autoresearch.execution.tracking)."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from autoresearch.execution import tracking
 from autoresearch.journal import read_json
-from autoresearch.loop import tracking
 
 KILL_GRACE_S = 2.0
 POLL_S = 0.05
@@ -144,7 +144,7 @@ def stop_orphaned_run(run_dir: Path, wait_s: float = 10.0) -> Leftover:
     """Kill what is left of a run whose supervisor died (e.g. kill -9 of the loop or the audit).
 
     Its processes are those carrying the run directory in ``AUTORESEARCH_RUN``
-    (autoresearch.loop.tracking), wherever they moved and whatever session they made; its watchdog
+    (autoresearch.execution.tracking), wherever they moved and whatever session they made; its watchdog
     goes first. A run still running past the deadline in process.json, or killed there by its
     watchdog, is overdue.
     A process.json without a deadline (written before runs were tracked) names a process group that

@@ -1,4 +1,4 @@
-"""Run one configuration of a family: patch a copy of train.py, execute it, parse its metric.
+"""Run one training run on this machine: patch a copy of train.py, execute it, parse its metric.
 
 The family's own train.py is never written. The patched copy lives in the run's directory,
 which is also the working directory of the subprocess; ``FAMILY_DIR`` tells the script where its
@@ -6,13 +6,13 @@ family's files are, and the family directory is put on ``PYTHONPATH`` so sibling
 The subprocess runs without a shell in its own session (process group); a wall-clock timeout,
 an interrupt of the caller, or leftover children after exit all end in ``os.killpg`` of that
 group, and in the kill of every other process the run started, found by the run directory in its
-``AUTORESEARCH_RUN`` wherever it moved (autoresearch.loop.tracking, which also gives each run a
+``AUTORESEARCH_RUN`` wherever it moved (autoresearch.execution.tracking, which also gives each run a
 watchdog that holds its deadline should the supervisor die). A run succeeds only if it exits 0
 and prints exactly one valid ``FINAL_METRIC:`` line; stdout is read in bounded memory.
 
-``eval_split="test"`` (the audit, for a family with a sealed test split) adds ``--eval-split
-test``: the record is then scored on the test split and must carry the search split's metrics of
-the same run under ``splits``. A search run whose record says it saw the test split fails.
+A run scored on the sealed test split (``RunSpec.split``: the audit, for a family that has one)
+gets ``--eval-split test``: its FINAL_METRIC must then carry the search split's metrics of the same
+training under ``splits`` too. A search run whose FINAL_METRIC says it saw the test split fails.
 
 A train.py may also print ``PROGRESS: {"step": <int>, "<metric>": <number>}`` lines (family
 contract, optional). They are read from the run's stdout file as they come, by the thread that
@@ -27,47 +27,23 @@ import os
 import subprocess
 import sys
 import tempfile
-import threading
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from autoresearch import editable
-from autoresearch.family import SEARCH, TEST, Family
-from autoresearch.journal import read_json, read_jsonl, repair_torn_tail, write_json_atomic
-from autoresearch.loop import tracking
-from autoresearch.loop.processes import run_in_group
-from autoresearch.loop.protocol import StdoutReader, check_record, check_split, final_metric
+from autoresearch.execution import tracking
+from autoresearch.execution.processes import run_in_group
+from autoresearch.execution.protocol import StdoutReader, check_final_metric, check_split, read_final_metric
+from autoresearch.execution.result import RESULT_FILE, RunResult
+from autoresearch.execution.spec import NO_HOOKS, RunHooks, RunSpec
+from autoresearch.family import Family
+from autoresearch.journal import read_jsonl, repair_torn_tail, write_json_atomic
 from autoresearch.space import ValidationError
+from autoresearch.splits import Split
 
 STDERR_TAIL = 600
-
-RunStatus = Literal["ok", "failed", "timeout", "early_stopped"]
-
-
-@dataclass(frozen=True)
-class RunResult:
-    status: RunStatus
-    run_id: str
-    record: dict[str, Any] | None
-    reason: str | None
-    wall_seconds: float | None
-    returncode: int | None
-    metric: float | None = None
-    progress: list[dict[str, Any]] | None = None  # the PROGRESS points, as {"step", "value"}
-
-    @property
-    def ok(self) -> bool:
-        return self.status == "ok"
-
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_json(cls, data: dict[str, Any]) -> RunResult:
-        return cls(**data)
 
 
 def family_env(family_dir: Path) -> dict[str, str]:
@@ -110,56 +86,38 @@ def write_train_copy(family: Family, config: dict[str, Any], run_dir: Path) -> P
     return target
 
 
-def run_experiment(
-    family: Family,
-    config: dict[str, Any],
-    *,
-    run_id: str,
-    seed: int,
-    run_dir: Path,
-    runs_log: Path,
-    timeout: float,
-    on_progress: Callable[[float], None] | None = None,
-    on_report: Callable[[int, float], bool] | None = None,
-    cancel: threading.Event | None = None,
-    eval_split: str = SEARCH,
-    die_with_supervisor: bool = False,
-) -> RunResult:
-    """Train ``config`` at ``seed`` in ``run_dir``; the result is also saved as run_dir/result.json.
-
-    ``on_report(step, value)`` hears each PROGRESS point; True stops the run early. Setting
-    ``cancel`` (another thread) kills the run and raises KeyboardInterrupt, leaving no result.
-    ``eval_split="test"`` scores the run on the family's sealed test split (the audit only).
-    ``die_with_supervisor`` (a Ray task): the run is killed when this process dies, instead of
-    outliving it to be adopted by a resume.
-    """
-    if eval_split not in (SEARCH, TEST) or (eval_split == TEST and not family.has_test_split):
-        raise ValueError(f"eval_split {eval_split!r}: family {family.name!r} has no such split")
+def run_locally(spec: RunSpec, hooks: RunHooks = NO_HOOKS, die_with_supervisor: bool = False) -> RunResult:
+    """Run ``spec`` on this machine, heard and stopped through ``hooks``; the result is also saved as
+    run_dir/result.json. ``die_with_supervisor`` (a Ray task): the run is killed when this process
+    dies, instead of outliving it to be adopted by a resume."""
+    family, run_dir = spec.family, spec.run_dir
+    if spec.split is Split.TEST and not family.has_test_split:
+        raise ValueError(f"split {spec.split.value!r}: family {family.name!r} has no such split")
     run_dir.mkdir(parents=True, exist_ok=True)
-    write_train_copy(family, config, run_dir)
-    repair_torn_tail(runs_log)  # a run killed mid-append must not glue its fragment to this record
+    write_train_copy(family, spec.config, run_dir)
+    repair_torn_tail(spec.runs_log)  # a run killed mid-append must not glue its fragment to this record
     cmd = [
         sys.executable,
         "train.py",
         "--seed",
-        str(seed),
+        str(spec.seed),
         "--run-id",
-        run_id,
+        spec.run_id,
         "--runs-log",
-        str(Path(runs_log).resolve()),
+        str(Path(spec.runs_log).resolve()),
         "--out",
         str((run_dir / "out").resolve()),
-        *(["--eval-split", TEST] if eval_split == TEST else []),
+        *(["--eval-split", Split.TEST.value] if spec.split is Split.TEST else []),
     ]
     started = time.monotonic()
-    reader = StdoutReader(run_dir / "stdout.txt", family.metric, on_report)
+    reader = StdoutReader(run_dir / "stdout.txt", family.metric, hooks.on_report)
     tracked = run_dir.resolve()  # what every process of the run carries in RUN_ENV
     watchdog: subprocess.Popen | None = None
 
     def on_start(pid: int) -> None:
         nonlocal watchdog
-        deadline, born = time.time() + timeout, tracking.start_time(pid)
-        info = {"pid": pid, "start_time": born, "deadline": deadline, "timeout": timeout, "cmd": cmd}
+        deadline, born = time.time() + spec.timeout, tracking.start_time(pid)
+        info = {"pid": pid, "start_time": born, "deadline": deadline, "timeout": spec.timeout, "cmd": cmd}
         write_json_atomic(run_dir / "process.json", info)
         if born is not None:  # None: no /proc, so nothing to watch with
             supervisor = os.getpid() if die_with_supervisor else None
@@ -173,11 +131,11 @@ def run_experiment(
                 env={**family_env(family.path), tracking.RUN_ENV: str(tracked)},
                 stdout=out,
                 stderr=err,
-                timeout=timeout,
+                timeout=spec.timeout,
                 on_start=on_start,
-                on_progress=on_progress,
+                on_progress=hooks.on_progress,
                 should_stop=reader.poll,
-                cancel=cancel,
+                cancel=hooks.cancel,
             )
     finally:
         # However the run ended: what it left outside its process group (a child that called setsid)
@@ -190,67 +148,51 @@ def run_experiment(
     if reader.stop:
         last = reader.points[-1]
         reason = f"stopped early at step {last['step']} ({family.metric} {last['value']:.6g} then)"
-        result = RunResult("early_stopped", run_id, None, reason, wall, returncode)
+        result = RunResult("early_stopped", spec.run_id, None, reason, wall, returncode)
     else:
         reader.finish()
-        result = _result(family, run_id, run_dir, reader, returncode, wall, timed_out, timeout, eval_split)
+        result = _result(spec, reader, returncode, wall, timed_out)
     result = replace(result, progress=reader.points or None)
-    write_json_atomic(run_dir / "result.json", result.to_json())
+    write_json_atomic(run_dir / RESULT_FILE, result.to_json())
     return result
 
 
-def _result(
-    family: Family,
-    run_id: str,
-    run_dir: Path,
-    reader: StdoutReader,
-    returncode: int,
-    wall: float,
-    timed_out: bool,
-    timeout: float,
-    eval_split: str,
-) -> RunResult:
+def _result(spec: RunSpec, reader: StdoutReader, returncode: int, wall: float, timed_out: bool) -> RunResult:
+    run_id, metric = spec.run_id, spec.family.metric
     if timed_out:
-        reason = f"exceeded the {timeout:g} s wall-clock limit; its process group was killed"
+        reason = f"exceeded the {spec.timeout:g} s wall-clock limit; its process group was killed"
         return RunResult("timeout", run_id, None, reason, wall, returncode)
     if returncode != 0:
-        tail = _tail(run_dir / "stderr.txt")
+        tail = _tail(spec.run_dir / "stderr.txt")
         reason = f"train.py exited with code {returncode}" + (f": {tail}" if tail else "")
         return RunResult("failed", run_id, None, reason, wall, returncode)
-    record, value, reason = final_metric(reader.finals, reader.n_finals, family.metric, run_id)
+    final_metric, value, reason = read_final_metric(reader.finals, reader.n_finals, metric, run_id)
     if reason is None:
-        reason = check_split(record, family.metric, eval_split)
+        reason = check_split(final_metric, metric, spec.split)
     if reason is not None:
         return RunResult("failed", run_id, None, reason, wall, returncode)
-    return RunResult("ok", run_id, record, None, wall, returncode, value)
+    return RunResult("ok", run_id, final_metric, None, wall, returncode, value)
 
 
-def logged_run(
-    family: Family, runs_log: Path, run_id: str, config: dict[str, Any], seed: int, eval_split: str = SEARCH
-) -> RunResult | None:
-    """The outcome of run ``run_id`` from its line in ``runs_log`` (train.py appends it as it ends), for
-    a run whose supervisor died before saving its result; None without such a line. A line counts
-    only with this configuration and seed: a forged or foreign line is never adopted."""
-    for line in read_jsonl(runs_log):
-        if not isinstance(line, dict) or line.get("run_id") != run_id or line.get("seed") != seed:
+def logged_run(spec: RunSpec) -> RunResult | None:
+    """The outcome of the run of ``spec`` from its line in the runs log (train.py appends it as it
+    ends), for a run whose supervisor died before saving its result; None without such a line. A
+    line counts only with the spec's configuration and seed: a forged or foreign line is never adopted."""
+    family, run_id = spec.family, spec.run_id
+    for line in read_jsonl(spec.runs_log):
+        if not isinstance(line, dict) or line.get("run_id") != run_id or line.get("seed") != spec.seed:
             continue
         try:
-            if family.space.validate_full(line.get("config")) != config:
+            if family.space.validate_full(line.get("config")) != spec.config:
                 continue
         except ValidationError:
             continue
-        value, reason = check_record(line, family.metric, run_id)
-        reason = reason or check_split(line, family.metric, eval_split)
+        value, reason = check_final_metric(line, family.metric, run_id)
+        reason = reason or check_split(line, family.metric, spec.split)
         if reason is not None:
             return RunResult("failed", run_id, None, reason, None, None)
         return RunResult("ok", run_id, line, None, None, None, value)
     return None
-
-
-def load_result(run_dir: Path) -> RunResult | None:
-    """The saved result of a run that finished, or None."""
-    path = run_dir / "result.json"
-    return RunResult.from_json(read_json(path)) if path.exists() else None
 
 
 def run_prepare_check(family_dir: Path, timeout: float = 300.0) -> str | None:

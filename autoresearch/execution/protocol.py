@@ -1,7 +1,7 @@
 """What a family's train.py prints that autoresearch reads (docs/family-contract.md): one
 ``FINAL_METRIC: {json}`` line, optional ``PROGRESS: {"step", <metric>}`` lines, both read from the
-run's stdout in bounded memory (:class:`StdoutReader`); what makes a record valid, and on which
-evaluation split it was scored.
+run's stdout in bounded memory (:class:`StdoutReader`); what makes a FINAL_METRIC object valid, and
+valid for the split the run was scored on (autoresearch.splits reads its scores).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from autoresearch.family import SEARCH, TEST
 from autoresearch.space import is_finite_number
+from autoresearch.splits import Split, split_parts
 
 FINAL_METRIC_PREFIX = "FINAL_METRIC:"
 PROGRESS_PREFIX = "PROGRESS:"
@@ -25,20 +25,20 @@ POLL_READ = 16 << 20
 MAX_LINE = 1 << 20
 
 
-def check_record(record: Any, metric: str, run_id: str) -> tuple[float | None, str | None]:
-    """(metric value, None) for a valid FINAL_METRIC record, else (None, why not)."""
-    if not isinstance(record, dict):
-        return None, f"FINAL_METRIC is not a JSON object: {str(record)[:80]}"
-    if record.get("run_id") != run_id:
-        return None, f"FINAL_METRIC run_id is {record.get('run_id')!r}, expected {run_id!r}"
-    if metric not in record:
+def check_final_metric(final_metric: Any, metric: str, run_id: str) -> tuple[float | None, str | None]:
+    """(primary metric, None) for a valid FINAL_METRIC object, else (None, why not)."""
+    if not isinstance(final_metric, dict):
+        return None, f"FINAL_METRIC is not a JSON object: {str(final_metric)[:80]}"
+    if final_metric.get("run_id") != run_id:
+        return None, f"FINAL_METRIC run_id is {final_metric.get('run_id')!r}, expected {run_id!r}"
+    if metric not in final_metric:
         return None, f"FINAL_METRIC has no primary metric {metric!r}"
-    value = record[metric]
+    value = final_metric[metric]
     if not isinstance(value, (int, float)) or isinstance(value, bool):
         return None, f"FINAL_METRIC {metric!r} is not a number: {_describe(value)}"
     if isinstance(value, float) and not math.isfinite(value):
         return None, f"FINAL_METRIC {metric!r} is not finite: {value!r}"
-    where = _unbounded_int(record)
+    where = _unbounded_int(final_metric)
     if where is not None:
         return None, f"FINAL_METRIC holds an integer too large for a float at {where}"
     return float(value), None
@@ -46,7 +46,7 @@ def check_record(record: Any, metric: str, run_id: str) -> tuple[float | None, s
 
 def _unbounded_int(data: Any) -> str | None:
     """Where parsed JSON holds an integer float() cannot hold (JSON integers are unbounded), or None.
-    Such a number anywhere in a record (its metric, its constraints) raises OverflowError where used."""
+    Such a number anywhere in a FINAL_METRIC object (its metric, its constraints) raises OverflowError where used."""
     stack: list[tuple[tuple[Any, ...], Any]] = [((), data)]
     while stack:  # iterative: the data came from an untrusted line
         path, item = stack.pop()
@@ -75,12 +75,13 @@ def _loads(text: str | bytes) -> Any:
 def parse_final_metric(
     stdout: str, metric: str, run_id: str
 ) -> tuple[dict[str, Any] | None, float | None, str | None]:
-    """(record, metric value, None) from exactly one valid FINAL_METRIC line, else (.., .., reason)."""
+    """(FINAL_METRIC object, primary metric, None) from exactly one valid FINAL_METRIC line, else
+    (.., .., reason)."""
     lines = [line for line in stdout.splitlines() if line.startswith(FINAL_METRIC_PREFIX)]
-    return final_metric(lines[:1], len(lines), metric, run_id)
+    return read_final_metric(lines[:1], len(lines), metric, run_id)
 
 
-def final_metric(
+def read_final_metric(
     lines: list[str], count: int, metric: str, run_id: str
 ) -> tuple[dict[str, Any] | None, float | None, str | None]:
     """:func:`parse_final_metric` from the first FINAL_METRIC line (or none) and how many there were."""
@@ -91,32 +92,33 @@ def final_metric(
     if not lines:
         return None, None, f"the FINAL_METRIC line is longer than {MAX_LINE} bytes"
     try:
-        record = _loads(lines[0][len(FINAL_METRIC_PREFIX) :])
+        final_metric = _loads(lines[0][len(FINAL_METRIC_PREFIX) :])
     except ValueError as err:
         return None, None, f"FINAL_METRIC is not valid JSON ({err})"
-    value, reason = check_record(record, metric, run_id)
-    return (record if reason is None else None), value, reason
+    value, reason = check_final_metric(final_metric, metric, run_id)
+    return (final_metric if reason is None else None), value, reason
 
 
-def check_split(record: dict[str, Any], metric: str, eval_split: str) -> str | None:
-    """Why a valid record does not hold what an ``eval_split`` run must, or None."""
-    said = record.get("eval_split", SEARCH)
-    if said != eval_split:
-        return f"FINAL_METRIC says it was scored on the {said!r} split, but the run asked for {eval_split!r}"
-    if eval_split == TEST:
-        search = searched(record)
-        if not isinstance(search, dict):
-            return "FINAL_METRIC of an --eval-split test run has no 'splits' object with a 'search' one"
-        if check_record({**search, "run_id": record["run_id"]}, metric, record["run_id"])[1] is not None:
-            return f"FINAL_METRIC splits.search has no finite primary metric {metric!r}"
+def check_split(final_metric: dict[str, Any], metric: str, split: Split) -> str | None:
+    """Why a valid FINAL_METRIC object does not hold what a run scored on ``split`` must, or None:
+    the split named, the primary metric on each split it holds (the search split's always, the top's
+    among them), and no test-split value in a search run."""
+    said = final_metric.get("eval_split", Split.SEARCH.value)
+    if said != split.value:
+        return f"FINAL_METRIC says it was scored on the {said!r} split, but the run asked for {split.value!r}"
+    parts = split_parts(final_metric)
+    if split is Split.SEARCH and Split.TEST in parts:
+        return "FINAL_METRIC of a search run holds test-split metrics (splits.test)"
+    for needed in dict.fromkeys((Split.SEARCH, split)):
+        if not isinstance(parts.get(needed), dict):
+            return f"FINAL_METRIC of a {split.value} run has no splits.{needed.value} object"
+    run_id = final_metric["run_id"]
+    for part_split, part in parts.items():
+        if not isinstance(part, dict) or check_final_metric({**part, "run_id": run_id}, metric, run_id)[1]:
+            return f"FINAL_METRIC splits.{part_split.value} has no finite primary metric {metric!r}"
+    if parts[split][metric] != final_metric[metric]:
+        return f"FINAL_METRIC splits.{split.value}.{metric} differs from the {metric!r} on top"
     return None
-
-
-def searched(record: dict[str, Any]) -> Any:
-    """The search split's metrics of a test-scored record: under ``splits``, or, in a record written
-    before that, ``search_split``."""
-    splits = record.get("splits")
-    return splits.get(SEARCH) if isinstance(splits, dict) else record.get("search_split")
 
 
 def parse_progress(line: str, metric: str) -> dict[str, Any] | None:
