@@ -1,4 +1,5 @@
-"""In-loop, single-seed judgements in units of noise (paper Eqs. perrun and plateau).
+"""Single-seed judgements in units of noise (paper Eqs. perrun and plateau), and which run of a
+campaign is its best.
 
 ``direction`` is sigma_dir: +1 when larger metric values are better, -1 when smaller are, so
 ``direction * (a - b) > 0`` exactly when ``a`` is better than ``b``.
@@ -6,7 +7,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
+from typing import Protocol, TypeVar
+
+from autoresearch.splits import Score
 
 CONFIRMED, REGRESSED, WITHIN_NOISE = "confirmed", "regressed", "within noise"
 
@@ -16,6 +20,27 @@ def noise_threshold(reference: float, sigma: float | None) -> float:
     if sigma is not None:
         return sigma
     return max(0.05 * abs(reference), 1e-12)
+
+
+class Ranked(Protocol):
+    """A run as the ranking sees it (a campaign's Record)."""
+
+    iteration: int
+    metric: float
+    feasible: bool | None
+
+
+R = TypeVar("R", bound=Ranked)
+
+
+def ranking(direction: int) -> Callable[[Ranked], tuple[float, int]]:
+    """The order of runs, best first: by the metric in ``direction``, the earliest iteration on ties."""
+    return lambda run: (-direction * run.metric, run.iteration)
+
+
+def best_feasible(runs: Iterable[R | None], direction: int) -> R | None:
+    """The best feasible run of ``runs`` (a campaign's single-seed best), the earliest on ties."""
+    return min((r for r in runs if r is not None and r.feasible), key=ranking(direction), default=None)
 
 
 def is_better(a: float, b: float | None, direction: int) -> bool:
@@ -51,10 +76,8 @@ def run_verdict(
     return verdict(metric, prior_best, direction, sigma)
 
 
-def plateau(
-    runs: Sequence[tuple[float, bool]], direction: int, window: int, kappa: float, sigma: float | None
-) -> bool:
-    """Eq. plateau over successful runs given as (metric, feasible), oldest first.
+def plateau(runs: Sequence[Score], direction: int, window: int, kappa: float, sigma: float | None) -> bool:
+    """Eq. plateau over the scores of successful runs, oldest first.
 
     True when none of the last ``window`` runs beats the best feasible run before the window by
     ``kappa`` noise units. An infeasible run cannot beat anything. Without ``window`` runs and a
@@ -62,9 +85,9 @@ def plateau(
     """
     if window < 1 or len(runs) <= window:
         return False
-    before = [m for m, feasible in runs[:-window] if feasible]
+    before = [s.metric for s in runs[:-window] if s.feasible]
     if not before:
         return False
     b_pre = max(before, key=lambda m: direction * m)
     margin = kappa * noise_threshold(b_pre, sigma)
-    return all(not feasible or direction * (m - b_pre) < margin for m, feasible in runs[-window:])
+    return all(not s.feasible or direction * (s.metric - b_pre) < margin for s in runs[-window:])

@@ -8,7 +8,7 @@ import pytest
 from loop_helpers import copy_toy
 
 from autoresearch.cli import main
-from autoresearch.loop.campaign_lock import CampaignLock
+from autoresearch.campaign.lock import CampaignLock
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from loop_helpers import copy_toy
 from autoresearch.campaign import CampaignError
 from autoresearch.cli import main
 from autoresearch.journal import read_jsonl
-from autoresearch.loop.campaign_lock import LOCK_FILE, CampaignBusy, CampaignLock, holder
+from autoresearch.campaign.lock import LOCK_FILE, CampaignBusy, CampaignLock, holder
 
 
 def loop_cmd(campaign: Path, *args: str) -> list[str]:

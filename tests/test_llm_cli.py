@@ -9,8 +9,8 @@ from loop_helpers import copy_toy
 
 from autoresearch.campaign import CampaignMeta
 from autoresearch.cli import main
-from autoresearch.commands.loop import DEFAULTS, build_loop
 from autoresearch.family import Family
+from autoresearch.loop.session import DEFAULTS, build_loop
 
 
 @pytest.fixture

@@ -17,7 +17,7 @@ import pytest
 from loop_helpers import copy_toy
 
 from autoresearch.campaign.check import check_campaign
-from autoresearch.commands.common import EXIT_ERROR, EXIT_NO_SPACE, error_exit
+from autoresearch.exits import EXIT_ERROR, EXIT_NO_SPACE, error_exit
 from autoresearch.journal import read_jsonl
 
 LIMIT = 6000  # bytes: the largest file a process under this limit may write

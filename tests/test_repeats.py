@@ -11,10 +11,11 @@ import pytest
 from loop_helpers import copy_toy
 from test_resume import check_trail, processes_under
 
+from autoresearch.campaign.group import GroupError, is_group, plan_group, repeat_dirs
+from autoresearch.loop.repeats import CHILD
 from autoresearch.cli import main
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
-from autoresearch.loop.repeats import GroupError, is_group, plan_group, repeat_dirs
 
 LOOP = [sys.executable, "-m", "autoresearch", "loop"]
 
@@ -38,7 +39,9 @@ def repeat_processes(group: Path) -> list[int]:
             cmdline = (entry / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if b"--resume" in cmdline and any(a.startswith(str(group).encode() + b"/repeat-") for a in cmdline):
+        if CHILD.encode() in cmdline and any(
+            a.startswith(str(group).encode() + b"/repeat-") for a in cmdline
+        ):
             found.append(int(entry.name))
     # A child caught between fork and exec still shows its parent's command line: count loops, not those.
     return [pid for pid in found if parent_of(pid) not in found]

@@ -30,12 +30,12 @@ from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
 from autoresearch.campaign import CampaignMeta
 from autoresearch.campaign.audit_log import StepLog, read_audit
-from autoresearch.commands.loop import DEFAULTS, build_loop
 from autoresearch.execution.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
 from autoresearch.loop.context import shown_registry, summarize_random_arm
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
+from autoresearch.loop.session import DEFAULTS, build_loop
 from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.base import Proposer
 from autoresearch.proposers.tools import PROPOSE

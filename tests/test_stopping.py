@@ -7,6 +7,7 @@ from autoresearch.campaign import Campaign, CampaignState
 from autoresearch.family import Family
 from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, stop_gate
 from autoresearch.proposers.base import Proposal, Usage
+from autoresearch.splits import Score
 from autoresearch.verdicts import noise_threshold, plateau, verdict
 
 BAD = Proposal(kind="invalid", error="scripted junk")
@@ -128,16 +129,20 @@ def test_verdict_and_threshold():
     assert verdict(1.5, 2.0, +1, 0.5) == "regressed"
 
 
+def scores(*pairs: tuple[float, bool]) -> list[Score]:
+    return [Score(metric, feasible) for metric, feasible in pairs]
+
+
 def test_plateau_predicate():
-    runs = [(1.0, True), (2.0, True), (2.05, True), (1.9, True)]
+    runs = scores((1.0, True), (2.0, True), (2.05, True), (1.9, True))
     assert plateau(runs, +1, window=2, kappa=1.0, sigma=None)  # 2.05 beats 2.0 by < 5 %
     assert not plateau(runs, +1, window=2, kappa=1.0, sigma=0.01)  # ... but by > sigma
     assert not plateau(runs, +1, window=3, kappa=1.0, sigma=None)  # 2.0 beats 1.0
     assert not plateau(runs, +1, window=4, kappa=1.0, sigma=None)  # no run before the window
-    assert plateau(
-        [(1.0, True), (9.0, False)], +1, window=1, kappa=1.0, sigma=None
-    )  # infeasible beats nothing
-    assert not plateau([(1.0, False), (0.5, True)], -1, window=1, kappa=1.0, sigma=None)  # no feasible b_pre
+    infeasible_last = scores((1.0, True), (9.0, False))
+    assert plateau(infeasible_last, +1, window=1, kappa=1.0, sigma=None)  # infeasible beats nothing
+    no_b_pre = scores((1.0, False), (0.5, True))
+    assert not plateau(no_b_pre, -1, window=1, kappa=1.0, sigma=None)  # no feasible b_pre
     assert plateau(runs, +1, window=2, kappa=6.0, sigma=0.01)  # a larger kappa demands more
 
 

@@ -18,6 +18,7 @@ from autoresearch.audit.inputs import AuditedCampaign
 from autoresearch.campaign import Campaign, Record, portable_path
 from autoresearch.execution.runner import family_env
 from autoresearch.family import Family
+from autoresearch.verdicts import best_feasible
 
 COLORS = {"agent": "#2ca02c", "random": "#1f77b4", "random_matched": "#6baed6", "other": "#ff7f0e"}
 HOOK_TIMEOUT_S = 600.0
@@ -106,8 +107,7 @@ def recipe_figure(records: list[Record], family: Family, out: Path) -> None:
     fig = Figure(figsize=(4 * ncols, 2.3 * nrows))
     best, best_configs = None, []
     for r in ran:
-        if r.feasible and (best is None or family.direction * (r.metric - best.metric) > 0):
-            best = r
+        best = best_feasible([best, r], family.direction)
         best_configs.append((r.iteration, best.config if best else None))
     for i, name in enumerate(names, start=1):
         ax = fig.add_subplot(nrows, ncols, i)

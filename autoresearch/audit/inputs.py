@@ -13,8 +13,7 @@ from autoresearch.campaign.audit_log import read_audit
 from autoresearch.family import Family
 from autoresearch.space import canonical_key
 from autoresearch.splits import Split
-
-AUDIT_DIR = "audit"
+from autoresearch.verdicts import best_feasible
 
 
 class AuditError(RuntimeError):
@@ -91,7 +90,7 @@ class AuditedCampaign:
         return self.paths.root
 
     def step_dir(self, step: str) -> Path:
-        return self.root / AUDIT_DIR / step
+        return self.paths.step_dir(step)
 
     @property
     def timeout(self) -> float:
@@ -105,9 +104,7 @@ class AuditedCampaign:
 
     def single_seed_best(self) -> Record | None:
         """The campaign's best feasible run (a one-seed claim), the earliest iteration on ties."""
-        sign = self.family.direction
-        feasible = [r for r in self.ran if r.feasible]
-        return max(feasible, key=lambda r: (sign * r.metric, -r.iteration)) if feasible else None
+        return best_feasible(self.ran, self.family.direction)
 
 
 def open_campaign(campaign_dir: str | Path) -> AuditedCampaign:

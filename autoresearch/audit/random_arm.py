@@ -38,6 +38,7 @@ from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.random_search import RandomProposer
 from autoresearch.space import NUMERIC_TYPES
 from autoresearch.splits import Split
+from autoresearch.verdicts import ranking
 
 MATCHED_AXIS = "training_budget"
 PROPOSER = "random"
@@ -209,7 +210,7 @@ def summarize(
     bests; written to audit.json by the caller."""
     family, sign = campaign.family, campaign.family.direction
     ran = [r for r in state.records if r.ran]
-    best_any = max(ran, key=lambda r: sign * r.metric) if ran else None
+    best_any = min(ran, key=ranking(sign), default=None)  # feasible or not
     best = state.best
     agent = campaign.single_seed_best()
     part: dict[str, Any] = {

@@ -26,6 +26,7 @@ from autoresearch.audit.prune import DECIDED_BY, RULES
 from autoresearch.campaign import portable_path
 from autoresearch.campaign.audit_log import read_audit
 from autoresearch.family import Family
+from autoresearch.verdicts import best_feasible
 
 
 def _fmt(x: float | None, digits: int = 4) -> str:
@@ -109,7 +110,7 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
     for arm in other_arms:
         ran = arm.ran
         feasible = [r for r in ran if r.feasible]
-        best = max(feasible, key=lambda r: sign * r.metric) if feasible else None
+        best = best_feasible(ran, sign)
         row(
             f"{arm.label} (best of {len(ran)})",
             _fmt(best and best.metric),

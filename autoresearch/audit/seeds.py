@@ -59,7 +59,7 @@ def used_seeds(
     for campaign in campaign_dirs:
         store = Campaign(campaign)
         used |= {r.seed for r in store.records() if isinstance(r.seed, int)}
-        used |= {r["seed"] for r in store.logged_runs() if isinstance(r.get("seed"), int)}
+        used |= {r["seed"] for r in store.logged_final_metrics() if isinstance(r.get("seed"), int)}
         audit = read_audit(campaign)
         used |= _seeds_in({step: part for step, part in audit.items() if step not in skip})
     return used

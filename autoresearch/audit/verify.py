@@ -33,6 +33,7 @@ from autoresearch.campaign.audit_log import TrialRow, write_step
 from autoresearch.execution.executors import Executor
 from autoresearch.family import Family
 from autoresearch.splits import Split
+from autoresearch.verdicts import best_feasible, ranking
 
 STEP = "verify"
 
@@ -43,12 +44,10 @@ def rank_candidates(campaign: AuditedCampaign, top: int) -> list[dict[str, Any]]
     family, sign = campaign.family, campaign.family.direction
     best: dict[str, Record] = {}
     for record in campaign.ran:
-        if not record.feasible or not changed_params(family, record.config):
-            continue
-        cid = config_id(record.config)
-        if cid not in best or sign * record.metric > sign * best[cid].metric:
-            best[cid] = record
-    ranked = sorted(best.values(), key=lambda r: (-sign * r.metric, r.iteration))[:top]
+        if changed_params(family, record.config):
+            cid = config_id(record.config)
+            best[cid] = best_feasible([best.get(cid), record], sign)
+    ranked = sorted((r for r in best.values() if r is not None), key=ranking(sign))[:top]
     return [
         {
             "config_id": config_id(r.config),

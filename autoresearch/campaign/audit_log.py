@@ -14,21 +14,20 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from autoresearch.campaign.paths import CampaignPaths
 from autoresearch.journal import Journal, read_json, update_json
 from autoresearch.splits import Score, ScoredRun, Split
-
-AUDIT_JSON = "audit.json"
 
 
 def read_audit(root: str | os.PathLike[str]) -> dict[str, Any]:
     """audit.json of the campaign in ``root``: {step: its part}, {} before the audit wrote one."""
-    path = Path(root) / AUDIT_JSON
+    path = CampaignPaths(Path(root)).audit_json
     return read_json(path) if path.exists() else {}
 
 
 def write_step(root: str | os.PathLike[str], step: str, part: dict[str, Any]) -> dict[str, Any]:
     """Replace audit.json[step] with ``part``."""
-    return update_json(Path(root) / AUDIT_JSON, lambda data: data.__setitem__(step, part))
+    return update_json(CampaignPaths(Path(root)).audit_json, lambda data: data.__setitem__(step, part))
 
 
 @dataclass(frozen=True)

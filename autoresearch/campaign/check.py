@@ -287,7 +287,7 @@ def audit_problems(root: str | Path, shape_only: bool = False) -> list[Problem]:
     """The problems of the campaign's audit.json ([] without one): not a JSON object, or a known
     step's part that is not an object (what the audit steps and the report cannot read: all
     ``shape_only`` asks for) or holds no known status."""
-    path = Path(root) / "audit.json"
+    path = CampaignPaths(Path(root)).audit_json
     if not path.exists():
         return []
     repair = "delete audit.json, or the broken part; the audit steps write theirs again when run"

@@ -42,7 +42,7 @@ class CampaignMeta:
     (``loop``, each repeat of a ``--repeats`` group, the audit's random arm, tests) and read back
     (``--resume``, the audit, ``check``), so every writer agrees.
 
-    ``settings`` are the writer's: the loop's flags (commands/loop.py DEFAULTS) for a loop campaign,
+    ``settings`` are the writer's: the loop's flags (loop/session.py DEFAULTS) for a loop campaign,
     the arm's draw for a random arm. ``group`` names the group a repeat belongs to.
 
     The family is found from any working directory: ``family_dir`` is its path relative to the

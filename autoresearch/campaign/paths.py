@@ -36,3 +36,11 @@ class CampaignPaths:
 
     def run_dir(self, run_id: str) -> Path:
         return self.runs_dir / run_id
+
+    @property
+    def audit_json(self) -> Path:
+        return self.root / "audit.json"
+
+    def step_dir(self, step: str) -> Path:
+        """Where an audit step keeps its log and its runs."""
+        return self.root / "audit" / step

@@ -14,7 +14,8 @@ from autoresearch.campaign.paths import CampaignError
 from autoresearch.campaign.records import BASELINE_PROPOSER, Record, Status
 from autoresearch.family import Family
 from autoresearch.space import canonical_key
-from autoresearch.verdicts import is_better, reaches_target
+from autoresearch.splits import Score
+from autoresearch.verdicts import best_feasible, is_better, reaches_target
 
 
 def count_iterations(records: list[Record]) -> int:
@@ -38,7 +39,7 @@ class CampaignState:
         self.output_tokens = 0
         self.elapsed_s = 0.0
         self.best: Record | None = None  # the best feasible run so far
-        self.runs: list[tuple[float, bool]] = []  # (metric, feasible) of successful runs, in order
+        self.scores: list[Score] = []  # of the successful runs, in the order recorded
         self.seen_configs: dict[str, int] = {}  # canonical config -> iteration that ran it
         self.seen_overrides: dict[str, int] = {}
         self.axes_exercised: set[str] = set()
@@ -152,15 +153,14 @@ class CampaignState:
             metric, feasible = record.metric, bool(record.feasible)
             self.n_runs_ok += 1
             self.consecutive_failures = 0
-            self.runs.append((metric, feasible))
+            self.scores.append(Score(metric, feasible))
             if record.proposer != BASELINE_PROPOSER:
                 self.n_experiments += 1
                 baseline = self.family.baseline_config
                 self.axes_exercised |= self.family.space.axes_of(
                     {k for k in config if config[k] != baseline[k]}
                 )
-            if feasible and is_better(metric, self.best_metric, self.family.direction):
-                self.best = record
+            self.best = best_feasible([self.best, record], self.family.direction)
             aux = {
                 k: v
                 for k, v in (record.final_metric or {}).items()

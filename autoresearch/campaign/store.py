@@ -97,19 +97,11 @@ class Campaign:
     def state(self, family: Family) -> CampaignState:
         return CampaignState.from_records(family, self.records())
 
-    def runs(self) -> list[Record]:
-        """The iterations whose run finished with a result (a failed or early-stopped run has none)."""
-        return [r for r in self.records() if r.ran]
-
     def started(self) -> list[Record]:
         """The iterations whose experiment started (ran, failed or stopped early)."""
         return [r for r in self.records() if r.status.started_a_run]
 
-    def best(self, family: Family) -> Record | None:
-        """The campaign's best feasible run (a one-seed claim), earliest on ties."""
-        return self.state(family).best
-
-    def logged_runs(self) -> list[dict[str, Any]]:
+    def logged_final_metrics(self) -> list[dict[str, Any]]:
         """runs.jsonl: the FINAL_METRIC objects the campaign's train.py runs appended."""
         return [line for line in read_jsonl(self.paths.runs_log) if isinstance(line, dict)]
 

@@ -11,6 +11,7 @@ from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
+from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import (
     add_executor_arguments,
@@ -23,7 +24,6 @@ from autoresearch.commands.common import (
 from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import print_verify
-from autoresearch.loop.campaign_lock import CampaignLock
 from autoresearch.splits import Split
 
 

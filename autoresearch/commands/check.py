@@ -9,12 +9,12 @@ from pathlib import Path
 from autoresearch.audit.inputs import AuditError, open_campaign, provenance_report
 from autoresearch.campaign import CampaignError
 from autoresearch.campaign.check import check_campaign
+from autoresearch.campaign.group import is_group, repeat_dirs
+from autoresearch.campaign.lock import holder, not_a_directory
 from autoresearch.commands import SUMMARIES
 from autoresearch.execution.runner import run_prepare_check
 from autoresearch.family import FamilyError, family_problems, find_family_dir
 from autoresearch.journal import JournalError
-from autoresearch.loop import repeats
-from autoresearch.loop.campaign_lock import holder, not_a_directory
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if problem:
         print(f"autoresearch check: error: {problem}", file=sys.stderr)
         return 2
-    roots = repeats.repeat_dirs(root) if repeats.is_group(root) else [root]
+    roots = repeat_dirs(root) if is_group(root) else [root]
     try:
         clean = [_check_one(r, args.strict_provenance) for r in roots]
     except OSError as err:  # a file it may not read

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import errno
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -13,14 +12,9 @@ from autoresearch.campaign import CampaignError
 from autoresearch.campaign.check import audit_problems
 from autoresearch.execution.executors import Executor, LocalExecutor
 from autoresearch.execution.processes import interruptible_runs
+from autoresearch.exits import EXIT_ERROR, error_exit
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
-
-# Exit statuses (docs/autoresearch-loop.md, docs/audit.md); 1 is kept for a failed prepare.py --check
-# (loop) and a campaign with problems (check), 130 for an interrupt.
-EXIT_ERROR = 2  # bad input, or a file that does not hold what it must
-EXIT_NO_SPACE = 3  # the disk, a quota or a file-size limit refused a write; what was recorded stands
-NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
 def positive_int(text: str) -> int:
@@ -85,20 +79,6 @@ def describe_noise(noise: dict) -> str:
     text = f"{noise['mean']:.6g} +- {noise['std']:.3g} (K={noise['k']})"
     test = noise.get("test")
     return text + (f"; on the test split {test['mean']:.6g} +- {test['std']:.3g}" if test else "")
-
-
-def error_exit(name: str, err: BaseException, again: str = "run the same command again") -> int:
-    """Say ``err`` in one line on stderr and return its exit status: EXIT_NO_SPACE when the disk
-    refused a write, else EXIT_ERROR. ``again`` says how to go on once space is freed."""
-    text = " ".join(str(err).split())
-    if isinstance(err, OSError) and err.errno in NO_SPACE:
-        print(
-            f"autoresearch {name}: error: out of disk space ({text}); free some, then {again}",
-            file=sys.stderr,
-        )
-        return EXIT_NO_SPACE
-    print(f"autoresearch {name}: error: {text}", file=sys.stderr)
-    return EXIT_ERROR
 
 
 def _unreadable_audit(args: argparse.Namespace) -> str | None:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from autoresearch.campaign import CampaignError
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import error_exit
+from autoresearch.exits import error_exit
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
 

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import EXIT_ERROR
+from autoresearch.exits import EXIT_ERROR
 from autoresearch.templates import TemplateError, write_family
 
 

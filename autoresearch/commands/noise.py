@@ -7,10 +7,10 @@ from pathlib import Path
 
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import default_noise_dir, measure_noise
+from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import add_executor_arguments, describe_noise, positive_int, run_command
 from autoresearch.family import resolve_family
-from autoresearch.loop.campaign_lock import CampaignLock
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

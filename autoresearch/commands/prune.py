@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from autoresearch.audit.prune import NOISE_AT, Rule, prune
+from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import (
     add_executor_arguments,
@@ -13,7 +14,6 @@ from autoresearch.commands.common import (
     positive_int,
     run_command,
 )
-from autoresearch.loop.campaign_lock import CampaignLock
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

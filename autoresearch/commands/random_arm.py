@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from autoresearch.audit.random_arm import default_arm_dir, run_random_arm
+from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import (
     add_executor_arguments,
@@ -16,7 +17,6 @@ from autoresearch.commands.common import (
     run_command,
 )
 from autoresearch.family import resolve_family
-from autoresearch.loop.campaign_lock import CampaignLock
 from autoresearch.space import SPACES
 
 

@@ -9,11 +9,11 @@ from pathlib import Path
 from autoresearch.audit.inputs import AuditError
 from autoresearch.audit.report import write_report
 from autoresearch.campaign.check import trail_problems
+from autoresearch.campaign.lock import not_a_directory
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import error_exit
+from autoresearch.exits import error_exit
 from autoresearch.family import FamilyError
 from autoresearch.journal import JournalError
-from autoresearch.loop.campaign_lock import not_a_directory
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from autoresearch.campaign import Campaign, CampaignError, CampaignPaths
-from autoresearch.loop.repeats import repeat_dirs
+from autoresearch.campaign.group import repeat_dirs
 
 FAMILY_KEYS = ("name", "metric", "direction", "target", "feasibility_field")
 

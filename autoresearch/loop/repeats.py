@@ -1,17 +1,17 @@
-"""N independent campaigns of one arm (``autoresearch loop --repeats N``).
+"""Running N independent campaigns of one arm (``autoresearch loop --repeats N``).
 
 A single campaign is one draw of a high-variance search; scoring an arm needs several. A *group*
-directory holds the N campaigns of one arm as ordinary campaign directories, ``repeat-00/``,
-``repeat-01/``, ...: repeat i seeds its proposer with ``seed + i``; every repeat starts with the same
-first experiment (the family baseline at the family's default seed) and trains every experiment at that
-seed, so repeats differ only in what the proposer chooses. ``repeats.json`` at the top records the arm
-(family, proposer, number of repeats, their seeds, the shared settings, one entry per session).
+directory (autoresearch.campaign.group) holds the N campaigns of one arm as ordinary campaign
+directories: repeat i seeds its proposer with ``seed + i``; every repeat starts with the same first
+experiment (the family baseline at the family's default seed) and trains every experiment at that seed,
+so repeats differ only in what the proposer chooses.
 
-The repeats are tasks of an :class:`~autoresearch.executors.Executor` (the local pool or Ray), and each
-task runs its repeat as a process of its own: ``autoresearch loop --resume --campaign <group>/repeat-NN``,
-the single-campaign command itself. So a repeat runs, records and resumes exactly like any campaign, and
-repeats share nothing, not even an interpreter (the loop is not written to share one). Running the same
-command again (or ``--resume``) continues the unfinished repeats; finished ones end at once with nothing
+The repeats are tasks of an :class:`~autoresearch.execution.executors.Executor` (the local pool or Ray),
+and each task runs its repeat as a process of its own: a session of its campaign resumed
+(:func:`autoresearch.loop.session.resume`, what ``autoresearch loop --resume --campaign
+<group>/repeat-NN`` runs). So a repeat runs, records and resumes exactly like any campaign, and repeats
+share nothing, not even an interpreter (the loop is not written to share one). Running the same command
+again (or ``--resume``) continues the unfinished repeats; finished ones end at once with nothing
 written. A larger ``--repeats`` adds repeats with the next seeds.
 """
 
@@ -22,155 +22,30 @@ import signal
 import subprocess
 import sys
 import threading
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-from autoresearch.campaign import (
-    Campaign,
-    CampaignError,
-    CampaignMeta,
-    CampaignPaths,
-    Record,
-    count_iterations,
-    portable_path,
-)
+from autoresearch.campaign import Campaign, CampaignError, Record, count_iterations
+from autoresearch.campaign.group import Group, RepeatTask
 from autoresearch.execution.executors import Executor
-from autoresearch.family import Family
-from autoresearch.journal import JournalError, read_json, write_json_atomic
+from autoresearch.journal import JournalError
 
-GROUP_FILE = "repeats.json"
-REPEAT_PREFIX = "repeat-"
-# A repeat's process: the loop command alone (not the whole CLI, whose other commands import scipy and
-# matplotlib: seconds per repeat), given its parent's pid first. It asks the kernel for SIGTERM (which the
+# A repeat's process: a loop session alone (not the whole CLI, whose other commands import scipy and
+# matplotlib: seconds per repeat), given its parent's pid first, then the arguments of the loop command it
+# stands for (campaign.json records them as its session's). It asks the kernel for SIGTERM (which the
 # loop turns into a clean interrupt) when its parent dies, even by kill -9, so that no orphaned loop runs
 # on beside a resumed one (Linux PR_SET_PDEATHSIG; elsewhere an orphan runs to its end).
 CHILD = """
-import argparse, ctypes, os, signal, sys
+import ctypes, os, signal, sys
 try:
     ctypes.CDLL(None).prctl(1, signal.SIGTERM)
 except (AttributeError, OSError):
     pass
 if os.getppid() != int(sys.argv.pop(1)):
     sys.exit(130)
-from autoresearch.commands import loop
-parser = loop.add_parser(argparse.ArgumentParser(prog="autoresearch").add_subparsers())
-sys.exit(loop.run(parser.parse_args(sys.argv[1:])))
+from autoresearch.loop import session
+sys.exit(session.resume(sys.argv[sys.argv.index("--campaign") + 1]))
 """
 _CHILDREN: set[subprocess.Popen] = set()  # repeats in flight in this process: where a cancel goes
-
-
-class GroupError(ValueError):
-    """The group directory cannot hold these repeats; the message says why."""
-
-
-def repeat_name(index: int) -> str:
-    return f"{REPEAT_PREFIX}{index:02d}"
-
-
-def is_group(path: str | Path) -> bool:
-    return (Path(path) / GROUP_FILE).is_file()
-
-
-def repeat_dirs(group: str | Path) -> list[Path]:
-    """The campaign directories of a group, in repeat order (``repeat-*/`` holding a campaign.json)."""
-    found = [
-        d
-        for d in Path(group).glob(f"{REPEAT_PREFIX}*")
-        if d.name[len(REPEAT_PREFIX) :].isdigit() and CampaignPaths(d).campaign_json.is_file()
-    ]
-    return sorted(found, key=lambda d: int(d.name[len(REPEAT_PREFIX) :]))
-
-
-@dataclass(frozen=True)
-class RepeatTask:
-    name: str
-    root: str  # the repeat's campaign directory
-    meta: CampaignMeta  # its campaign.json
-
-
-@dataclass(frozen=True)
-class Group:
-    root: Path
-    meta: dict[str, Any]  # repeats.json
-    tasks: list[RepeatTask]
-
-    def write(self) -> None:
-        """repeats.json first (the arm), then each repeat's campaign.json."""
-        self.root.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(self.root / GROUP_FILE, self.meta)
-        for task in self.tasks:
-            Path(task.root).mkdir(exist_ok=True)
-            task.meta.write(task.root)
-
-
-def plan_group(
-    root: Path,
-    *,
-    family: Family,
-    proposer: str,
-    settings: dict[str, Any],
-    repeats: int | None,
-    session: dict[str, Any],
-) -> Group:
-    """The group at ``root``: a new one, or the existing one continued (same arm, as many or more repeats).
-
-    ``settings`` are the loop settings shared by every repeat (``seed`` is the first repeat's); for an
-    existing group they are its saved settings overridden by the flags given again.
-    """
-    saved = read_json(root / GROUP_FILE) if is_group(root) else None
-    if saved is None:
-        if CampaignPaths(root).campaign_json.exists():
-            raise GroupError(
-                f"{root} is a single campaign, not a group of repeats; choose another --campaign"
-            )
-        if root.exists() and any(root.iterdir()):
-            raise GroupError(
-                f"{root} already exists and is not a group of repeats; choose another --campaign"
-            )
-        if repeats is None:
-            raise GroupError(f"{root}: no group of repeats here to resume; start one with --repeats N")
-        saved = {"created": session["started"], "sessions": []}
-    else:
-        for key, value in (("family_name", family.name), ("proposer", proposer)):
-            if saved[key] != value:
-                raise GroupError(
-                    f"{root} is a group of {key} {saved[key]!r}, not {value!r}; a group is one arm"
-                )
-        if settings["seed"] != saved["settings"]["seed"]:
-            raise GroupError(
-                f"{root}: this group's seeds start at {saved['settings']['seed']}; --seed cannot change"
-            )
-        if repeats is not None and repeats < saved["repeats"]:
-            raise GroupError(f"{root} holds {saved['repeats']} repeats; --repeats {repeats} cannot shrink it")
-        repeats = repeats or saved["repeats"]
-    seeds = [settings["seed"] + i for i in range(repeats)]
-    meta = {
-        "family": portable_path(family.path),
-        "family_name": family.name,
-        "proposer": proposer,
-        "repeats": repeats,
-        "seeds": seeds,
-        "settings": settings,
-        "created": saved["created"],
-        "sessions": [*saved["sessions"], session],
-    }
-    tasks = []
-    for i, seed in enumerate(seeds):
-        task_root = root / repeat_name(i)
-        previous = CampaignMeta.read(task_root) if CampaignPaths(task_root).campaign_json.exists() else None
-        campaign_meta = CampaignMeta(  # sessions: the repeat's own process adds one as it resumes
-            family=portable_path(family.path),
-            family_name=family.name,
-            proposer=proposer,
-            settings={**settings, "seed": seed},
-            created=previous.created if previous else session["started"],
-            sessions=previous.sessions if previous else (),
-            group={"dir": portable_path(root), "repeat": i},
-        )
-        # absolute: a Ray worker need not share the working directory
-        tasks.append(RepeatTask(repeat_name(i), str(task_root.resolve()), campaign_meta))
-    return Group(root, meta, tasks)
 
 
 def _records(task: RepeatTask) -> list[Record]:
@@ -206,16 +81,7 @@ def run_repeat(task: RepeatTask) -> dict[str, Any]:
     """Run (or resume) one repeat in its own process, forwarding its output line by line under the repeat's
     name; its outcome as a plain dict (it may travel back from a Ray worker)."""
     before = len(_records(task))
-    cmd = [
-        sys.executable,
-        "-c",
-        CHILD,
-        str(os.getpid()),
-        "--resume",
-        "--campaign",
-        task.root,
-        "--plain",
-    ]
+    cmd = [sys.executable, "-c", CHILD, str(os.getpid()), "--resume", "--campaign", task.root, "--plain"]
     last_line = ""
     with subprocess.Popen(
         cmd,

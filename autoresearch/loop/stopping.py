@@ -42,7 +42,9 @@ class Trigger:
 
 def _plateau_active(state: CampaignState, budgets: Budgets) -> bool:
     family = state.family
-    return plateau(state.runs, family.direction, budgets.plateau_window, budgets.plateau_kappa, family.sigma)
+    return plateau(
+        state.scores, family.direction, budgets.plateau_window, budgets.plateau_kappa, family.sigma
+    )
 
 
 def first_trigger(state: CampaignState, budgets: Budgets, elapsed_s: float) -> Trigger | None:

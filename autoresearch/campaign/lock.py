@@ -13,7 +13,7 @@ import fcntl
 import os
 from pathlib import Path
 
-from autoresearch.campaign import CampaignError
+from autoresearch.campaign.paths import CampaignError
 
 LOCK_FILE = "campaign.lock"
 
