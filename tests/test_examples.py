@@ -248,3 +248,15 @@ def test_sb3_policy_batch_matches_the_env(one_torch_thread):
     assert metrics["mean_terminal_distance"] == float(info["terminal_distance"].mean())
     assert metrics["violation_rate"] == float(info["violation_rate"].mean())
     assert metrics["success_rate"] == float(np.mean(info["is_success"]))
+
+
+def test_baselines_fly_every_controller_through_gym_make(tmp_path):
+    """examples/baselines.py: MPC lands on both envs and keeps the keep-out; the closed-form law
+    lands on rendezvous too, and on docking through the filter without entering the keep-out."""
+    rows = {(row[0], row[1]): row for row in table_rows(run("baselines.py", "--seed", 3, cwd=tmp_path))}
+    assert len(rows) == 6
+    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v0"):
+        mpc = rows[(env_id, "MPC")]
+        assert float(mpc[2]) < 1e-5 and mpc[3] == "True" and abs(float(mpc[5]) - 1) < 1e-3
+    assert rows[("CWHDockKOZ-v0", "closed-form feedback + CBF")][4] == "0.0%"
+    assert rows[("CWHDockKOZ-v0", "MPC")][4] == "0.0%"
