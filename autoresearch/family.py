@@ -1,13 +1,13 @@
 """Load and validate a family directory (docs/family-contract.md).
 
-autoresearch writes under a family directory only two fields of its family.json: seed_noise (the
-audit's noise step) and best (its verify and prune steps); campaigns and their runs live outside
-it (:meth:`Family.check_outside`). Every error names the file and field
-that is missing or invalid.
+family.json is the registry: the declaration and the current best. autoresearch writes under a
+family directory only what its audit owns: family.json's best (its verify step) and ledger.json (the
+seed noise, the promotions: autoresearch.ledger); campaigns and their runs live outside it
+(:meth:`Family.check_outside`). Every error names the file and field that is missing or invalid.
 
 A family that declares ``"test_split": true`` scores a run on a sealed test split when its
-train.py is given ``--eval-split test``. Only the audit asks for it; :func:`search_view` is the
-registry as every proposer sees it, without a number measured on that split.
+train.py is given ``--eval-split test``. Only the audit asks for it; :meth:`Family.search_registry`
+is the registry as every proposer sees it, without a number measured on that split.
 """
 
 from __future__ import annotations
@@ -22,6 +22,8 @@ from typing import Any
 
 from autoresearch.direction import Direction
 from autoresearch.editable import EditableError, read_region
+from autoresearch.journal import JournalError
+from autoresearch.ledger import LEDGER_FILE, Ledger
 from autoresearch.space import SearchSpace, SpaceError, ValidationError
 from autoresearch.splits import ScoredRun, Split
 
@@ -55,7 +57,8 @@ class Family:
     program: str
     program_blind: str
     train_source: str
-    registry: dict[str, Any]
+    registry: dict[str, Any]  # family.json
+    ledger: Ledger
     space: SearchSpace
 
     @property
@@ -98,7 +101,18 @@ class Family:
 
     @property
     def seed_noise(self) -> dict[str, Any] | None:
-        return self.registry.get("seed_noise")
+        return self.ledger.seed_noise
+
+    @property
+    def best(self) -> dict[str, Any] | None:
+        """The current best: {"config", "metric"} (family.json's)."""
+        return self.registry.get("best")
+
+    def search_registry(self) -> dict[str, Any]:
+        """What a campaign copies and every proposer is shown: family.json and the seed noise beside
+        it, as one registry, without any number measured on the sealed test split (:func:`search_view`)."""
+        declared = {k: v for k, v in self.registry.items() if k != "seed_noise"}  # the old layout's
+        return search_view({**declared, "seed_noise": self.seed_noise})
 
     @property
     def sigma(self) -> float | None:
@@ -138,7 +152,7 @@ class Family:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Family:
         path = Path(path).resolve()
-        registry, space, train_source, problems = _read(path)
+        registry, ledger, space, train_source, problems = _read(path)
         if problems:
             raise FamilyError(problems[0])
         return cls(
@@ -148,6 +162,7 @@ class Family:
             program_blind=(path / "program_blind.md").read_text(encoding="utf-8"),
             train_source=train_source,  # the text that was checked, read once
             registry=registry,
+            ledger=ledger,
             space=space,
         )
 
@@ -159,24 +174,47 @@ def family_problems(path: str | os.PathLike[str]) -> list[str]:
     return _read(Path(path).resolve())[-1]
 
 
-def _read(path: Path) -> tuple[Any, SearchSpace | None, str | None, list[str]]:
-    """(family.json's registry, its search space, train.py's text, every problem found)."""
+def _read(path: Path) -> tuple[Any, Ledger | None, SearchSpace | None, str | None, list[str]]:
+    """(family.json's registry, the ledger, the search space, train.py's text, every problem found)."""
     if not path.is_dir():
-        return None, None, None, [f"{path}: not a directory"]
+        return None, None, None, None, [f"{path}: not a directory"]
     missing = [f for f in REQUIRED_FILES if not (path / f).is_file()]
     problems = [f"{path}: missing {', '.join(missing)} (see docs/family-contract.md)"] if missing else []
     if "family.json" in missing:
-        return None, None, None, problems
+        return None, None, None, None, problems
     try:
         registry = json.loads((path / "family.json").read_text(encoding="utf-8"))
     except ValueError as err:
-        return None, None, None, [*problems, f"{path / 'family.json'}: not valid JSON ({err})"]
+        return None, None, None, None, [*problems, f"{path / 'family.json'}: not valid JSON ({err})"]
     space, registry_problems = _registry_problems(registry, path / "family.json")
     problems += registry_problems
+    ledger = None
+    if isinstance(registry, dict):
+        where = path / LEDGER_FILE if (path / LEDGER_FILE).exists() else path / "family.json"
+        try:
+            ledger = Ledger.read(path, registry)
+        except JournalError as err:
+            problems.append(str(err))
+        else:
+            problems += _noise_problems(ledger.seed_noise, where)
     source = None if "train.py" in missing else (path / "train.py").read_text(encoding="utf-8")
     if space is not None and source is not None:
         problems += _train_py_problems(source, registry, space, path / "train.py")
-    return registry, space, source, problems
+    return registry, ledger, space, source, problems
+
+
+def _noise_problems(noise: Any, where: Path) -> list[str]:
+    """The problems of the seed noise (ledger.json's, or the old layout's in family.json)."""
+    problems = []
+    if noise is not None and not (
+        isinstance(noise, dict) and _number(noise.get("std")) and noise["std"] >= 0
+    ):
+        problems.append(f"{where}: 'seed_noise' must be null or an object with a finite 'std' >= 0")
+    for part, name in ((noise, "seed_noise"), ((noise or {}).get(Split.TEST.value), "seed_noise.test")):
+        for key in ("mean", "std"):  # read as numbers by the audit and the prompts
+            if isinstance(part, dict) and key in part and not _number(part[key]):
+                problems.append(f"{where}: '{name}.{key}' must be a finite number")
+    return problems
 
 
 def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, list[str]]:
@@ -211,15 +249,6 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
     seed = registry.get("default_seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool):
         bad("default_seed", "must be an integer")
-    noise = registry.get("seed_noise")
-    if noise is not None and not (
-        isinstance(noise, dict) and _number(noise.get("std")) and noise["std"] >= 0
-    ):
-        bad("seed_noise", "must be null or an object with a finite 'std' >= 0")
-    for part, name in ((noise, "seed_noise"), ((noise or {}).get(Split.TEST.value), "seed_noise.test")):
-        for key in ("mean", "std"):  # read as numbers by the audit and the prompts
-            if isinstance(part, dict) and key in part and not _number(part[key]):
-                bad(f"{name}.{key}", "must be a finite number")
     best = registry.get("best")
     if best is not None and not (isinstance(best, dict) and isinstance(best.get("config"), dict)):
         bad("best", "must be null or an object with a 'config'")

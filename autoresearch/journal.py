@@ -55,7 +55,8 @@ def _naming(path: Path) -> Iterator[None]:
         raise
 
 
-def _locked(path: Path):
+def locked(path: Path):
+    """``path``'s lock, taken (a context manager); JournalError when another writer holds it too long."""
     try:
         return lock_for(path).acquire()
     except Timeout:
@@ -87,7 +88,7 @@ def repair_torn_tail(path: str | os.PathLike[str]) -> bool:
     path = Path(path)
     if not path.exists():
         return False
-    with _locked(path):
+    with locked(path):
         start = _torn_start(path)
         if start is None:
             return False
@@ -122,7 +123,7 @@ def append_line(path: str | os.PathLike[str], data: bytes) -> None:
     if not data.endswith(b"\n") or b"\n" in data[:-1]:
         raise ValueError(f"{path}: an appended record must be exactly one line")
     path = Path(path)
-    with _locked(path), _naming(path):
+    with locked(path), _naming(path):
         fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         try:
             written = os.write(fd, data)
@@ -229,7 +230,7 @@ def update_json(path: str | os.PathLike[str], change: Callable[[dict[str, Any]],
     """Read-modify-write the JSON object in ``path`` ({} when absent) under its lock, replacing it
     atomically: two writers never lose each other's changes. Returns the object as written."""
     path = Path(path)
-    with _locked(path):
+    with locked(path):
         data = read_json(path) if path.exists() else {}
         if not isinstance(data, dict):
             raise JournalError(f"{path}: must hold a JSON object")

@@ -8,8 +8,9 @@ every :func:`differences` between the recorded environment and the current one;
 Versions are read from the installed distributions' metadata, never by importing them (this
 package does not import torch). The git state is that of the repository holding the family
 directory: its commit, and whether tracked files differ from it (recorded, not compared: the audit
-itself rewrites the family's family.json). family.json is hashed without ``seed_noise`` and
-``best``, the two fields the audit writes, so that a hash names the problem and its search space.
+itself rewrites the family's best and its ledger). family.json is hashed without ``best``, which the
+audit writes, nor ``seed_noise`` (the audit wrote it there before the ledger), so that a hash names the
+problem and its search space in either layout; ledger.json is not hashed.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ PACKAGES = (
     "cwh-autoresearch",
 )
 FAMILY_FILES = ("train.py", "family.json", "program.md", "program_blind.md", "prepare.py")
-AUDIT_WRITES = ("seed_noise", "best")  # family.json fields the audit owns: left out of its hash
+AUDIT_WRITES = ("seed_noise", "best")  # family.json fields the audit writes (or wrote): left out of its hash
 GIT_TIMEOUT_S = 10.0
 
 

@@ -162,7 +162,7 @@ def _run_record(rng: random.Random, iteration: int, registry: dict, baseline: di
 
 def campaign(kind: str, family_name: str, iterations: int) -> dict:
     family = resolve_family(family_name)
-    registry = shown_registry(family.registry, blind=False)
+    registry = shown_registry(family.search_registry(), blind=False)
     server = CachingServer(kind)
     http = httpx2.Client(transport=httpx2.MockTransport(server))
     if kind == "anthropic":

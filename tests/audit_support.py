@@ -15,7 +15,17 @@ from autoresearch.loop.stopping import Budgets
 from autoresearch.proposers.base import Proposer
 
 AUDIT_FAMILY = Path(__file__).resolve().parent / "audit_family"
-__all__ = ["AUDIT_FAMILY", "P1", "P1W", "P2", "TOY_FAMILY", "ScriptedProposer", "copy_family", "run_campaign"]
+__all__ = [
+    "AUDIT_FAMILY",
+    "P1",
+    "P1W",
+    "P2",
+    "TOY_FAMILY",
+    "ScriptedProposer",
+    "copy_family",
+    "family_best",
+    "run_campaign",
+]
 
 # tests/audit_family's designed edits (see its train.py): P1 edits one parameter per
 # Eq. loodecision case; P2 adds the pair that matters only jointly; P1W is P1 made erratic.
@@ -25,9 +35,15 @@ P1W = {**P1, "WIDE": True}
 
 
 def copy_family(src: Path, dest: Path) -> Family:
-    """A private copy: the audit writes seed_noise and best into family.json."""
+    """A private copy: the audit writes the family's best and its ledger."""
     shutil.copytree(src, dest, ignore=shutil.ignore_patterns("runs.jsonl*", "__pycache__"))
     return Family.load(dest)
+
+
+def family_best(family_dir: Path) -> dict | None:
+    """The ledger's entry of the family's best, as the audit left it."""
+    family = Family.load(family_dir)
+    return family.ledger.current(family.best)
 
 
 def run_campaign(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from audit_support import AUDIT_FAMILY, P1, P1W, P2, ScriptedProposer, copy_family, run_campaign
+from audit_support import AUDIT_FAMILY, P1, P1W, P2, ScriptedProposer, copy_family, family_best, run_campaign
 
 from autoresearch.audit.inputs import AuditError, config_id, open_campaign
 from autoresearch.audit.noise import measure_noise
@@ -47,7 +47,8 @@ def scenario_a(tmp_path_factory):
 
 def test_noise_is_written_into_the_family_and_the_audit(scenario_a):
     family, root, _, _ = scenario_a
-    noise = read_json(family.path / "family.json")["seed_noise"]
+    noise = read_json(family.path / "ledger.json")["seed_noise"]
+    assert "seed_noise" not in read_json(family.path / "family.json")  # the registry holds no measurement
     assert noise["k"] == 4 and noise["seeds"] == [1, 2, 3, 4]  # fresh: the default seed 0 is taken
     assert noise["mean"] == pytest.approx(1.8) and noise["std"] == pytest.approx(SIGMA)
     assert noise["n_feasible"] == 0  # the baseline runs without its safety filter
@@ -67,9 +68,14 @@ def test_verify_promotes_the_reproducible_candidate_not_the_single_seed_best(sce
         assert c["ci_low"] < c["diff"] < c["ci_high"]
     assert candidates[p1w]["sigma_r"] == pytest.approx(10 * SIGMA)
     assert verified["promoted"] == p1
-    best = Family.load(family.path).registry["best"]
+    best = family_best(family.path)
     assert best["config"] == full(family, P1) and best["n"] == 4
     assert best["metric"] == pytest.approx(candidates[p1]["mu_r"])
+    # family.json: the configuration and its certified number; the rest is the ledger's
+    assert read_json(family.path / "family.json")["best"] == {
+        "config": best["config"],
+        "metric": best["metric"],
+    }
 
 
 def test_prune_decides_every_case_of_eq_loodecision(scenario_a):
@@ -95,7 +101,7 @@ def test_prune_decides_every_case_of_eq_loodecision(scenario_a):
 def test_pruned_recipe_is_published_beside_the_family_best(scenario_a):
     family, _, _, pruned = scenario_a
     assert pruned["published"] and pruned["pruned"]["passed"]
-    best = Family.load(family.path).registry["best"]
+    best = family_best(family.path)
     assert best["config"] == full(family, P1)  # the family best stays the full configuration
     assert best["distilled"]["config"] == full(family, {**P1, "HITCH": "a", "DAGGER": 0})
     assert best["distilled"]["dropped"] == ["HITCH", "DAGGER"]
@@ -135,7 +141,7 @@ def test_joint_group_forces_the_full_recipe(tmp_path):
     # Together they regress past the target the full recipe reached: not published.
     assert pruned["pruned"]["passed"] and pruned["target_retained"] is False and not pruned["published"]
     assert "matters jointly" in pruned["reason"] and "JOINT_A, JOINT_B" in pruned["reason"]
-    best = Family.load(family.path).registry["best"]
+    best = family_best(family.path)
     assert best["config"] == full(family, P2) and "distilled" not in best
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 from loop_helpers import copy_toy
 
-from autoresearch.cli import main
 from autoresearch.campaign.lock import CampaignLock
+from autoresearch.cli import main
 
 
 @pytest.fixture(scope="module")

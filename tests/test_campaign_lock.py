@@ -12,9 +12,9 @@ import pytest
 from loop_helpers import copy_toy
 
 from autoresearch.campaign import CampaignError
+from autoresearch.campaign.lock import LOCK_FILE, CampaignBusy, CampaignLock, holder
 from autoresearch.cli import main
 from autoresearch.journal import read_jsonl
-from autoresearch.campaign.lock import LOCK_FILE, CampaignBusy, CampaignLock, holder
 
 
 def loop_cmd(campaign: Path, *args: str) -> list[str]:

@@ -10,7 +10,9 @@ import pytest
 from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
 
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, Record, Status
+from autoresearch.campaign.audit_log import read_audit, write_step
 from autoresearch.campaign.check import PUBLISHED, check_campaign
+from autoresearch.campaign.group import GROUP_FILE, GroupMeta, is_group, repeat_dirs
 from autoresearch.family import Family
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,3 +90,25 @@ def test_a_published_campaign_still_shows_real_damage(tmp_path):
     (tmp_path / "c" / "proposals.jsonl").write_text("".join(lines[1:]))  # iteration 1 lost
     problems = check_campaign(tmp_path / "c").problems
     assert any("iteration 1 is missing" in p.what for p in problems)
+
+
+@pytest.mark.parametrize("group", ["results/compare/dock-tpe", "results/compare-rendezvous/rdv-gp"])
+def test_a_committed_group_reads_as_typed_and_writes_back_the_same_bytes(group, tmp_path):
+    meta = GroupMeta.read(ROOT / group)
+    assert is_group(ROOT / group) and meta.repeats == len(meta.seeds) == len(repeat_dirs(ROOT / group))
+    meta.write(tmp_path)
+    assert (tmp_path / GROUP_FILE).read_bytes() == (ROOT / group / GROUP_FILE).read_bytes()
+
+
+def test_the_store_owns_audit_json_and_the_step_directories(tmp_path):
+    paths = Campaign(tmp_path).paths
+    assert read_audit(tmp_path) == {}
+    write_step(tmp_path, "verify", {"status": "running"})
+    write_step(tmp_path, "noise", {"status": "done"})
+    write_step(tmp_path, "verify", {"status": "done"})
+    assert json.loads(paths.audit_json.read_text()) == {
+        "verify": {"status": "done"},
+        "noise": {"status": "done"},
+    }
+    assert read_audit(tmp_path) == json.loads(paths.audit_json.read_text())
+    assert paths.step_dir("prune") == tmp_path / "audit" / "prune"

@@ -8,8 +8,9 @@ from loop_helpers import TOY_FAMILY, copy_toy
 
 from autoresearch.campaign import Campaign, CampaignMeta, Record, Status
 from autoresearch.cli import main
+from autoresearch.compare.analysis import analyse
 from autoresearch.compare.inputs import CompareError, load_arms
-from autoresearch.compare.report import analyse, write_comparison
+from autoresearch.compare.report import write_comparison
 from autoresearch.journal import write_json_atomic
 
 NOISE = {"mean": 0.86, "std": 0.01, "k": 5, "measured_at": "2025-01-01T00:00:00+00:00"}

@@ -345,11 +345,14 @@ def test_family_json_matches_the_contract_and_train_py(name):
     assert registry["baseline"]["config"] == defaults
     assert family.metric == METRICS[name] and family.direction == -1
     # Only `autoresearch noise` and the audit's promotion write these; when present they must be whole.
-    noise = registry["seed_noise"]
+    noise = family.seed_noise
     if noise is not None:
         assert noise["k"] >= 2 and len(noise["values"]) == noise["k"] and noise["std"] > 0
-    if registry["best"] is not None:
-        family.space.validate_full(registry["best"]["config"])
+    if family.best is not None:
+        family.space.validate_full(family.best["config"])
+        assert family.ledger.current(family.best)["config"] == family.best["config"]  # where it came from
+    # family.json is the registry: the declaration and the current best, no measurement of the audit's
+    assert "seed_noise" not in registry and set(registry.get("best") or {}) <= {"config", "metric"}
     assert (
         isinstance(registry["baseline"]["metric"], float)
         and registry["baseline"]["seed"] == family.default_seed

@@ -34,7 +34,7 @@ def test_init_minimal_then_check_and_loop(tmp_path, capsys, monkeypatch):
     assert {p.name for p in (tmp_path / "fam").iterdir()} == FAMILY_FILES
     registry = json.loads((tmp_path / "fam" / "family.json").read_text())
     template = json.loads((MINIMAL_TEMPLATE / "family.json").read_text())
-    assert registry == {**template, "name": "fam", "seed_noise": None, "best": None}
+    assert registry == {**template, "name": "fam", "best": None}
     assert (tmp_path / "fam" / "train.py").read_bytes() == (MINIMAL_TEMPLATE / "train.py").read_bytes()
 
     assert main(["check", "--family", "fam"]) == 0
@@ -52,13 +52,15 @@ def test_init_names_the_family_and_strips_what_was_measured_for_the_template(tmp
     family_dir = ROOT / "families" / "docking"
     shipped = {p.name for p in target.iterdir()}
     assert FAMILY_FILES <= shipped and {"export.py", "report.py"} <= shipped
+    assert "ledger.json" not in shipped  # the template's measurements belong to its own campaigns
     for name in shipped - {"family.json"}:
         assert (target / name).read_bytes() == (family_dir / name).read_bytes(), name
     registry = json.loads((target / "family.json").read_text())
-    assert (registry["name"], registry["seed_noise"], registry["best"]) == ("my-dock", None, None)
-    original = json.loads((family_dir / "family.json").read_text())
-    assert original["best"] is not None  # so stripping it is what the test sees
-    assert registry["search_space"] == original["search_space"]
+    assert (registry["name"], registry["best"], "seed_noise" in registry) == ("my-dock", None, False)
+    assert Family.load(target).seed_noise is None
+    original = Family.load(family_dir)
+    assert original.best is not None and original.seed_noise is not None  # so stripping them is what is seen
+    assert registry["search_space"] == original.registry["search_space"]
     assert Family.load(target).name == "my-dock"
 
 
@@ -210,7 +212,7 @@ def test_wheel_init_loop_audit_outside_the_repository(tmp_path):
     )
     sh("autoresearch", "audit", "--campaign", "c", "--noise-seeds", "3", "--seeds", "3", "--count", "3")
     assert (work / "c" / "report.md").is_file()
-    assert json.loads((work / "fam" / "family.json").read_text())["seed_noise"]["k"] == 3
+    assert json.loads((work / "fam" / "ledger.json").read_text())["seed_noise"]["k"] == 3
     sh("autoresearch", "init", "dock", "--template", "docking")
     assert (work / "dock" / "train.py").read_bytes() == (
         ROOT / "families" / "docking" / "train.py"

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
+from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, family_best, run_campaign
 
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise
@@ -19,8 +19,7 @@ from autoresearch.audit.verify import verify
 from autoresearch.campaign.audit_log import read_audit, write_step
 from autoresearch.cli import main
 from autoresearch.execution.executors import LocalExecutor
-from autoresearch.family import Family
-from autoresearch.journal import read_json, read_jsonl
+from autoresearch.journal import read_jsonl
 
 S = 0.01
 SIGMA = S * math.sqrt(4 / 3)  # four alternating +-S noise values
@@ -91,7 +90,7 @@ def test_each_rule_keeps_its_own_key_and_the_last_decides(p1):
     assert audit["prune_decided_by"] == {"key": "prune_paired", "rule": "paired"}
     assert paper["rule"] == "paper" and by_param(paper)["GAP"]["delta2_sigma"] == pytest.approx(-1.5)
     assert paired["dropped"] == ["HITCH", "DAGGER"] and paired["published"]
-    distilled = read_json(family.path / "family.json")["best"]["distilled"]
+    distilled = family_best(family.path)["distilled"]
     assert distilled["rule"] == "paired" and distilled["dropped"] == ["HITCH", "DAGGER"]
 
 
@@ -126,7 +125,7 @@ def test_the_candidate_unit_is_the_spread_of_its_reseeds(tmp_path):
 
 def test_family_best_source_is_relative_to_the_repository(p1):
     family, _, _, _ = p1
-    source = Family.load(family.path).registry["best"]["source"]
+    source = family_best(family.path)["source"]
     assert source["campaign"] == "campaign" and not source["campaign"].startswith("/")
 
 

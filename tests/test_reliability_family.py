@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
-from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
+from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, family_best, run_campaign
 from loop_helpers import copy_toy
 
 from autoresearch.audit.inputs import open_campaign
@@ -54,10 +54,10 @@ def test_two_audits_at_once_end_with_the_better_best(tmp_path):
     time.sleep(1.0)  # X has read family.json (no best yet) and is training
     fast = cli(*verify, "--campaign", str(better))
     assert finish(fast)[0] == 0
-    assert read_json(family.path / "family.json")["best"]["source"]["campaign"].endswith("y")
+    assert family_best(family.path)["source"]["campaign"].endswith("y")
     code, _, err = finish(slow)
     assert code == 0, err
-    best = read_json(family.path / "family.json")["best"]
+    best = family_best(family.path)
     assert best["source"]["campaign"].endswith("y")  # the better best stands
     decided = read_audit(worse)["verify"]["family_best"]
     assert decided["updated"] is False and "better bound" in decided["why"]
@@ -93,8 +93,9 @@ def test_a_campaign_finds_its_family_from_any_working_directory(tmp_path):
         )
     )
     assert code == 0, err
-    assert read_json(family.path / "family.json")["seed_noise"]["k"] == 2
+    assert read_json(family.path / "ledger.json")["seed_noise"]["k"] == 2
     assert (impostor.path / "family.json").read_bytes() == before  # never touched
+    assert not (impostor.path / "ledger.json").exists()
 
     # Resuming against a family of the same name whose problem differs is refused, in one line.
     resume = ["loop", "--resume", "--campaign", str(start / "c"), "--max-iters", "3", "--plain"]

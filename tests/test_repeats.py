@@ -12,10 +12,10 @@ from loop_helpers import copy_toy
 from test_resume import check_trail, processes_under
 
 from autoresearch.campaign.group import GroupError, is_group, plan_group, repeat_dirs
-from autoresearch.loop.repeats import CHILD
 from autoresearch.cli import main
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
+from autoresearch.loop.repeats import CHILD
 
 LOOP = [sys.executable, "-m", "autoresearch", "loop"]
 

@@ -41,7 +41,7 @@ def test_audit_command_runs_every_step(audited):
     assert {k: audit[k]["status"] for k in audit} == dict.fromkeys(
         ("noise", "verify", "prune", "random", "random_matched"), "done"
     )
-    assert Family.load(family.path).registry["seed_noise"]["k"] == 4
+    assert Family.load(family.path).seed_noise["k"] == 4
 
 
 def test_report_has_the_audit_table_in_the_papers_shape(audited):
@@ -142,7 +142,7 @@ def test_an_audit_of_a_changed_family_measures_the_noise_again(audited, tmp_path
     assert noise["k"] == 2 and noise["measured_at"] >= old["measured_at"]
     assert stale_noise(Family.load(copy.path)) == []
     # A noise measured before pinning has nothing to compare: it is kept, as before.
-    registry = json.loads((copy.path / "family.json").read_text())
-    del registry["seed_noise"]["pinned"]
-    (copy.path / "family.json").write_text(json.dumps(registry))
+    ledger = json.loads((copy.path / "ledger.json").read_text())
+    del ledger["seed_noise"]["pinned"]
+    (copy.path / "ledger.json").write_text(json.dumps(ledger))
     assert stale_noise(Family.load(copy.path)) == []

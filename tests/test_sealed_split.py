@@ -19,7 +19,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
-from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, run_campaign
+from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, family_best, run_campaign
 from llm_support import chat_reply, messages_reply, tool_use
 
 from autoresearch.audit.inputs import AuditError, config_id, open_campaign
@@ -72,7 +72,7 @@ def sealed(tmp_path_factory):
 
 def test_the_noise_is_measured_on_both_splits_from_the_same_runs(sealed):
     family, root, *_ = sealed
-    noise = read_json(family.path / "family.json")["seed_noise"]
+    noise = Family.load(family.path).seed_noise
     assert noise["test"]["k"] == noise["k"] == 4
     assert noise["test"]["mean"] == pytest.approx(noise["mean"] + OFFSET)
     assert noise["test"]["std"] == pytest.approx(noise["std"])
@@ -93,7 +93,7 @@ def test_verify_gates_and_promotes_on_the_test_split(sealed):
         assert candidate["mu_r"] == test["mu_r"] == pytest.approx(search["mu_r"] + OFFSET)
         assert all(r["metric"] > OFFSET and r["search_metric"] < OFFSET for r in candidate["reseeds"])
     assert verified["promoted"] == config_id({**family.baseline_config, **P1})  # as on search: the tight one
-    best = read_json(family.path / "family.json")["best"]
+    best = family_best(family.path)
     assert best["split"] == "test" and best["metric"] > OFFSET and best["by_split"]["search"]["mu_r"] < OFFSET
     assert read_audit(root)["verify"]["split"] == "test"
 
@@ -153,7 +153,7 @@ def test_a_family_without_a_sealed_split_gates_as_before_and_says_so(tmp_path):
         verify(open_campaign(root), SERIAL, top=1, n_seeds=2, split="test")
     verified = verify(open_campaign(root), SERIAL, top=1, n_seeds=2)
     assert verified["split"] == "search" and verified["sealed_split"] is False
-    assert "test" not in read_json(family.path / "family.json")["seed_noise"]
+    assert "test" not in Family.load(family.path).seed_noise
     assert "No sealed split" in write_report(root).read_text()
 
 
@@ -183,7 +183,7 @@ def test_no_key_free_proposer_sees_a_test_split_value(name, sealed, tmp_path):
     settings = {"seed": 0, "timeout_per_run": 60.0, "max_iters": 4, "space": None, "random_arm": str(arm)}
     meta = CampaignMeta.new(Family.load(family.path), name, {**DEFAULTS, **settings})
     fam, proposer, _ = build_loop(meta)
-    assert leaks(json.dumps(shown_registry(fam.registry, blind=False))) == []  # what build_loop hands it
+    assert leaks(json.dumps(shown_registry(fam.search_registry(), blind=False))) == []  # what build_loop hands it
     spy = Spy(proposer)
     campaign = tmp_path / "c"
     campaign.mkdir()

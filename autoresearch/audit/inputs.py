@@ -11,6 +11,7 @@ from autoresearch import provenance
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, Record
 from autoresearch.campaign.audit_log import read_audit
 from autoresearch.family import Family
+from autoresearch.ledger import LEDGER_FILE
 from autoresearch.space import canonical_key
 from autoresearch.splits import Split
 from autoresearch.verdicts import best_feasible
@@ -67,7 +68,7 @@ def seed_noise(family: Family, split: Split = Split.SEARCH) -> dict[str, Any]:
             "measured seed noise" if split is Split.SEARCH else "seed noise measured on its sealed test split"
         )
         raise AuditError(
-            f"family {family.name!r} has no {what} (mean, std, k) in {family.path / 'family.json'}; "
+            f"family {family.name!r} has no {what} (mean, std, k) in {family.path / LEDGER_FILE}; "
             f"run `autoresearch noise --family {family.path}` first"
         )
     return family.seed_noise if split is Split.SEARCH else family.seed_noise[Split.TEST.value]

@@ -1,8 +1,8 @@
 """Measured seed noise (paper Eq. noisefloor): the baseline configuration over K fresh seeds.
 
-The result is a property of the family, so it is written into the family's own family.json
-(``seed_noise``), and also into a campaign's audit.json when the measurement is part of its
-audit. Runs are logged as they finish; a re-run skips the seeds already measured, and a larger
+The result is a property of the family, so it is written into the family's ledger (ledger.json
+beside family.json: ``seed_noise``), and also into a campaign's audit.json when the measurement is
+part of its audit. Runs are logged as they finish; a re-run skips the seeds already measured, and a larger
 ``k`` extends the same seed list (the plan is deterministic). For a family with a sealed test
 split the same runs are scored on it too: ``seed_noise["test"]`` holds that split's mean, std and
 values (never shown to a proposer: autoresearch.family.search_view). ``seed_noise["pinned"]`` holds
@@ -16,8 +16,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from autoresearch import ledger
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import set_family_field
 from autoresearch.audit.inputs import AuditedCampaign, AuditError
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
@@ -25,6 +25,7 @@ from autoresearch.campaign import portable_path
 from autoresearch.campaign.audit_log import read_audit, write_step
 from autoresearch.execution.executors import Executor
 from autoresearch.family import Family
+from autoresearch.ledger import LEDGER_FILE
 from autoresearch.provenance import family_hashes
 from autoresearch.splits import Score, Split
 
@@ -81,7 +82,7 @@ def measure_noise(
         "pinned": pins(family),
         **sealed,
     }
-    set_family_field(family.path, "seed_noise", noise)
+    ledger.update(family.path, lambda registry, old: (old.measured(noise), None))
     if campaign is not None:
         write_step(
             campaign.root,
@@ -134,6 +135,6 @@ def record_existing_noise(campaign: AuditedCampaign) -> dict[str, Any]:
         raise AuditError(f"family {campaign.family.name!r} has no seed noise to record")
     recorded = read_audit(campaign.root).get(STEP) or {}
     if {k: recorded.get(k) for k in noise} != noise:  # keep "measured" if this audit measured it
-        part = {"status": "done", "source": "family.json", **noise, "provenance": campaign.provenance}
+        part = {"status": "done", "source": LEDGER_FILE, **noise, "provenance": campaign.provenance}
         write_step(campaign.root, STEP, part)
     return noise

@@ -32,14 +32,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from autoresearch import ledger
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import update_family
 from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import assess, is_this_campaign
 from autoresearch.campaign.audit_log import TrialRow, read_audit, write_step
 from autoresearch.execution.executors import Executor
+from autoresearch.ledger import Ledger
 from autoresearch.splits import Split
 from autoresearch.verdicts import reaches_target
 
@@ -308,10 +309,10 @@ def _attach_distilled(
         "dropped": dropped,
     }
 
-    def attach(registry: dict[str, Any]) -> None:
-        best = registry.get("best") or {}
+    def attach(registry: dict[str, Any], old: Ledger) -> tuple[Ledger, None]:
+        best = old.current(registry.get("best")) or {}
         if is_this_campaign(best.get("source"), campaign) and best["config"] == full["config"]:
-            registry["best"] = {**best, "distilled": distilled}
-        # else the family best came from elsewhere; the distilled recipe stays in audit.json
+            return old.restated({**best, "distilled": distilled}), None
+        return old, None  # the family best came from elsewhere; the distilled recipe stays in audit.json
 
-    update_family(campaign.family.path, attach)
+    ledger.update(campaign.family.path, attach)

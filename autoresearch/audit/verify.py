@@ -23,8 +23,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from autoresearch import ledger
 from autoresearch.audit import stats
-from autoresearch.audit.auditjson import update_family
 from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, gate_split, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
@@ -32,6 +32,7 @@ from autoresearch.campaign import Record
 from autoresearch.campaign.audit_log import TrialRow, write_step
 from autoresearch.execution.executors import Executor
 from autoresearch.family import Family
+from autoresearch.ledger import Ledger, best_of
 from autoresearch.splits import Split
 from autoresearch.verdicts import best_feasible, ranking
 
@@ -206,10 +207,11 @@ def promote(campaign: AuditedCampaign, candidate: dict[str, Any]) -> dict[str, A
     with a worse best). Returns {"updated", "why"}."""
     family = campaign.family
 
-    def decide(registry: dict[str, Any]) -> dict[str, Any]:
-        write, why = _replaces_family_best(registry.get("best"), family, candidate, campaign)
+    def decide(registry: dict[str, Any], old: Ledger) -> tuple[Ledger, dict[str, Any]]:
+        best = registry.get("best")
+        write, why = _replaces_family_best(old.current(best) or best, family, candidate, campaign)
         if write:
-            registry["best"] = {
+            entry = {
                 "config": candidate["config"],
                 "metric": candidate["mu_r"],
                 "std": candidate["sigma_r"],
@@ -222,9 +224,10 @@ def promote(campaign: AuditedCampaign, candidate: dict[str, Any]) -> dict[str, A
                     "step": STEP,
                 },
             }
-        return {"updated": write, "why": why}
+            registry["best"], old = best_of(entry), old.promoted(entry)
+        return old, {"updated": write, "why": why}
 
-    return update_family(family.path, decide)
+    return ledger.update(family.path, decide)
 
 
 def verify(

@@ -77,11 +77,11 @@ def run(args: argparse.Namespace) -> int:
         stale = stale_noise(family) if measured else []
         if measured and not args.force and not stale:
             noise = record_existing_noise(campaign)
-            print(f"[noise] from family.json: {describe_noise(noise)}")
+            print(f"[noise] from the family's ledger: {describe_noise(noise)}")
         else:
             if stale and not args.force:
                 print(
-                    f"[noise] family.json's seed noise was measured on another version of the family ({'; '.join(stale)}): measuring again"
+                    f"[noise] the family's seed noise was measured on another version of it ({'; '.join(stale)}): measuring again"
                 )
             noise = measure_noise(family, executor, k=args.noise_seeds, campaign=campaign)
             print(f"[noise] measured: {describe_noise(noise)}")

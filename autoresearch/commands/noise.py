@@ -11,6 +11,7 @@ from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import add_executor_arguments, describe_noise, positive_int, run_command
 from autoresearch.family import resolve_family
+from autoresearch.ledger import LEDGER_FILE
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -18,7 +19,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "noise",
         help=SUMMARIES["noise"],
         description="Run the family's baseline configuration at K fresh seeds and write the mean and the "
-        "Bessel-corrected standard deviation of the metric into the family's family.json (seed_noise). "
+        "Bessel-corrected standard deviation of the metric into the family's ledger.json (seed_noise). "
         "Resumable: a re-run skips the seeds already measured.",
         epilog="Example: autoresearch noise --family docking --seeds 10 --workers 2",
     )
@@ -57,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
         )
         print(
             f"seed noise of {family.name}: {family.metric} = {describe_noise(noise)}, seeds {noise['seeds']}; "
-            f"written to {family.path / 'family.json'}"
+            f"written to {family.path / LEDGER_FILE}"
         )
 
     return run_command("noise", args, body)

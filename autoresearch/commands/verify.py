@@ -23,7 +23,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help=SUMMARIES["verify"],
         description="Rebuild the campaign's configurations from proposals.jsonl, rank them, re-run the top "
         "few at fresh seeds, gate each (margin m >= 2 seed-noise units and feasible on every seed) and "
-        "promote the most reproducible passing one into the family's family.json (best).",
+        "promote the most reproducible passing one: the family's best in family.json, its numbers in ledger.json.",
         epilog="Example: autoresearch verify --campaign runs/docking-tpe-20250101-120000 --workers 2",
     )
     p.add_argument("--campaign", required=True, help="campaign directory")

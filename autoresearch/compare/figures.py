@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -12,9 +11,7 @@ from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormat
 
 from autoresearch.audit.figures import LOG_SPAN
 from autoresearch.compare import stats as compare
-
-if TYPE_CHECKING:
-    from autoresearch.compare.report import Analysis
+from autoresearch.compare.analysis import Analysis
 
 TIME_POINTS = 200
 

@@ -2,15 +2,14 @@
 figures (best so far against experiments and against wall-clock, and the performance profile).
 
 Only feasible runs count toward the best so far and the target (the ``feasible`` of each record, i.e.
-the family's ``feasibility_field``). The statistics are :mod:`autoresearch.compare.stats`'s; the arms come
-from :mod:`autoresearch.compare.inputs`.
+the family's ``feasibility_field``). The numbers are :mod:`autoresearch.compare.analysis`'s, from the
+statistics of :mod:`autoresearch.compare.stats`; the arms come from :mod:`autoresearch.compare.inputs`.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -18,79 +17,11 @@ import numpy as np
 
 from autoresearch.campaign import portable_path
 from autoresearch.compare import stats as compare
+from autoresearch.compare.analysis import Analysis, analyse
 from autoresearch.compare.figures import budget_figure, profile_figure, wallclock_figure
-from autoresearch.compare.inputs import CompareError, RepeatedArm, common_family, noise_reference
-from autoresearch.direction import Direction
+from autoresearch.compare.inputs import RepeatedArm
 
-BUDGET_TRIGGERS = ("max_iters", "max_runs", "wall_clock", "max_cost")
 CHECKPOINTS = 8
-
-
-@dataclass(frozen=True)
-class Analysis:
-    family: dict[str, Any]
-    direction: int
-    budget: int
-    noise: dict[str, Any] | None
-    arms: list[RepeatedArm]
-    summaries: dict[str, dict[str, Any]]
-    improvement: dict[tuple[str, str], tuple[float, float, float]]
-    notes: list[str]
-
-
-def analyse(
-    arms: list[RepeatedArm],
-    budget: int | None = None,
-    sigma: float | None = None,
-    seed: int = 0,
-    n_resamples: int = compare.RESAMPLES,
-) -> Analysis:
-    family = common_family(arms)
-    direction = Direction.of(family["direction"])
-    longest = max(r.n for arm in arms for r in arm.repeats)
-    if longest == 0:
-        raise CompareError("no campaign has run an experiment yet")
-    budget = min(budget or longest, longest)
-    rng = np.random.default_rng(seed)
-    matrices = {
-        arm.name: np.array(
-            [compare.best_so_far(r.metrics, r.feasible, direction, budget) for r in arm.repeats]
-        )
-        for arm in arms
-    }
-    summaries = {
-        name: compare.summarize_arm(m, direction, family["target"], rng, n_resamples)
-        for name, m in matrices.items()
-    }
-    finals = {name: s["finals"] for name, s in summaries.items()}
-    notes = []
-    for arm in arms:
-        short = [r for r in arm.repeats if r.n < budget and r.ended in BUDGET_TRIGGERS]
-        if short:
-            notes.append(
-                f"{arm.name}: {len(short)} repeat(s) ended by their own budget ({short[0].ended}) before "
-                f"{budget} experiments and are held at their final best; pass --budget "
-                f"{min(r.n for r in short)} to compare like for like."
-            )
-        if arm.unstarted:
-            notes.append(
-                f"{arm.name}: not started yet, left out: {', '.join(d.name for d in arm.unstarted)}."
-            )
-        unfinished = [r.dir.name for r in arm.repeats if r.ended is None]
-        if unfinished:
-            notes.append(
-                f"{arm.name}: unfinished (running or interrupted), held at their last best: {', '.join(unfinished)}."
-            )
-    return Analysis(
-        family,
-        direction,
-        budget,
-        noise_reference(arms, sigma),
-        arms,
-        summaries,
-        compare.improvement_table(finals, direction, rng, n_resamples),
-        notes,
-    )
 
 
 # ----- figures ---------------------------------------------------------------------------

@@ -8,7 +8,7 @@ from typing import TextIO
 
 from autoresearch.campaign import CampaignMeta, CampaignState
 from autoresearch.extras import require
-from autoresearch.family import resolve_family, search_view
+from autoresearch.family import resolve_family
 from autoresearch.loop.context import build_context, shown_registry
 from autoresearch.loop.stopping import Budgets, closest_trigger
 from autoresearch.proposers import make_proposer
@@ -31,7 +31,7 @@ def dry_run(meta: CampaignMeta, out: TextIO | None = None) -> int:
     )
     proposer = make_proposer(
         name,
-        shown_registry(family.registry, blind),
+        shown_registry(family.search_registry(), blind),
         seed=settings["seed"],
         model=settings["model"],
         base_url=settings["base_url"],
@@ -42,7 +42,7 @@ def dry_run(meta: CampaignMeta, out: TextIO | None = None) -> int:
     budgets = Budgets(max_iters=settings["max_iters"], max_cost_usd=settings["max_cost_usd"])
     context = build_context(
         state,
-        registry=search_view(family.registry),
+        registry=family.search_registry(),
         blind=blind,
         extra_warnings=(f"Budget: {closest_trigger(state, budgets, 0.0, blind)}",),
     )

@@ -43,7 +43,7 @@ from autoresearch.execution.executors import Executor, LocalExecutor
 from autoresearch.execution.result import RunResult
 from autoresearch.execution.runner import run_prepare_check
 from autoresearch.execution.spec import RunHooks
-from autoresearch.family import Family, search_view
+from autoresearch.family import Family
 from autoresearch.journal import repair_torn_tail
 from autoresearch.loop import recovery
 from autoresearch.loop.asking import Halt, ask
@@ -133,7 +133,7 @@ class Orchestrator:
         registry = campaign.registry()
         if registry is None:
             # The campaign's own copy: no sealed-split number, and its own running best.
-            registry = search_view(self.family.registry)
+            registry = self.family.search_registry()
             campaign.write_registry(registry)
         name = registry.get("name") if isinstance(registry, dict) else None
         if name != self.family.name:  # a one-line error, with its repair, not a traceback

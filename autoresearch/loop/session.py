@@ -123,7 +123,7 @@ def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
     family = resolve_family(meta.family)
     proposer = make_proposer(
         meta.proposer,
-        shown_registry(family.registry, settings["blind"]),
+        shown_registry(family.search_registry(), settings["blind"]),
         seed=settings["seed"],
         model=settings["model"],
         base_url=settings["base_url"],

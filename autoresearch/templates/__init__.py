@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch.family import PLAIN_NAME, family_problems, own_file
+from autoresearch.ledger import LEDGER_FILE
 
 GROUP = "autoresearch.templates"
 MINIMAL_TEMPLATE = Path(__file__).resolve().parent / "minimal"
@@ -40,7 +41,7 @@ def available() -> dict[str, EntryPoint]:
 def write_family(target: Path, template: str, name: str | None = None) -> dict[str, Any]:
     """Write a new family at ``target`` (absent or an empty directory) from ``template`` and return
     its family.json. The family is named ``name`` (default: the directory's name) and starts with
-    no measured seed noise and no best, which belong to the template's own campaigns. The files
+    no best and no ledger (no measured seed noise), which belong to the template's own campaigns. The files
     are written into a temporary sibling and renamed into place, so a failure leaves nothing."""
     templates = available()
     if template not in templates:
@@ -54,12 +55,14 @@ def write_family(target: Path, template: str, name: str | None = None) -> dict[s
         raise TemplateError(f"{target}: exists and is not an empty directory")
     source = templates[template].load()()
     registry = json.loads((source / "family.json").read_text(encoding="utf-8"))
-    registry.update(name=name, seed_noise=None, best=None)
+    registry = {k: v for k, v in registry.items() if k != "seed_noise"}  # a template in the old layout
+    registry.update(name=name, best=None)
     target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
     try:
         for item in source.iterdir():
-            if item.is_file() and own_file(item.name) and item.name != "family.json":  # no run output dir
+            # no run output dir, and neither the registry nor the ledger of the template's own campaigns
+            if item.is_file() and own_file(item.name) and item.name not in ("family.json", LEDGER_FILE):
                 (staging / item.name).write_bytes(item.read_bytes())
         (staging / "family.json").write_text(json.dumps(registry, indent=2) + "\n", encoding="utf-8")
         problems = family_problems(staging)

@@ -16,13 +16,14 @@ import json
 import sys
 from pathlib import Path
 
-from autoresearch.audit.auditjson import update_family
+from autoresearch import ledger
 from autoresearch.audit.inputs import config_id, open_campaign, seed_noise
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import assess
 from autoresearch.campaign.audit_log import StepLog, TrialRow, read_audit
 from autoresearch.execution.executors import LocalExecutor
 from autoresearch.family import Family
+from autoresearch.ledger import Ledger, best_of
 from autoresearch.splits import Split
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -124,24 +125,30 @@ def recertify(family_dir: Path, results: list[dict]) -> str:
     """Re-state the family's best (and its distilled recipe) on the test split when its re-measure
     passes the gate there; a best that fails on the test split is left as it was and reported."""
 
-    def decide(registry: dict) -> str:
-        best = registry.get("best")
+    def decide(registry: dict, old: Ledger) -> tuple[Ledger, str]:
+        best = old.current(registry.get("best"))
         if not best:
-            return "none"
+            return old, "none"
         found = {r["config_id"]: r for r in results if r["campaign"] == best["source"]["campaign"]}
         full = found.get(config_id(best["config"]))
         if full is None:
-            return "not among the re-measured recipes: unchanged"
+            return old, "not among the re-measured recipes: unchanged"
         if not full[TEST]["passed"]:
-            return f"FAILS the gate on the test split ({full[TEST]['reason']}): left as certified on search"
-        registry["best"] = {**best, **_restated(full)}
+            return (
+                old,
+                f"FAILS the gate on the test split ({full[TEST]['reason']}): left as certified on search",
+            )
+        restated = {**best, **_restated(full)}
         distilled = best.get("distilled")
         pruned = distilled and found.get(config_id(distilled["config"]))
         if pruned:
-            registry["best"]["distilled"] = {**distilled, **_restated(pruned)}
-        return f"re-certified on the test split: {full[TEST]['mu_r']:.4g} +- {full[TEST]['sigma_r']:.2g}"
+            restated["distilled"] = {**distilled, **_restated(pruned)}
+        registry["best"] = best_of(restated)
+        return old.restated(restated), (
+            f"re-certified on the test split: {full[TEST]['mu_r']:.4g} +- {full[TEST]['sigma_r']:.2g}"
+        )
 
-    return update_family(family_dir, decide)
+    return ledger.update(family_dir, decide)
 
 
 def _restated(result: dict) -> dict:
