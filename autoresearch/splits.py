@@ -4,8 +4,8 @@ A family's train.py scores a run on the search split (the 128 starts every searc
 when the audit asks for ``--eval-split test``, on the sealed test split too, from one training. Its
 FINAL_METRIC object keeps the primary metric of the split it was scored on at the top and each
 split's metrics under ``splits``. :meth:`ScoredRun.read` reads that shape and the two it replaced:
-a record written before ``splits`` (a test run kept the search split's metrics under
-``search_split``) and a record of a family that prints no ``splits`` (its top is the search split).
+a FINAL_METRIC object written before ``splits`` (a test run kept the search split's metrics under
+``search_split``) and one of a family that prints no ``splits`` (its top is the search split).
 """
 
 from __future__ import annotations
