@@ -14,8 +14,7 @@ from autoresearch.audit.verify import verify
 from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import (
-    add_executor_arguments,
-    add_provenance_argument,
+    add_audit_arguments,
     describe_noise,
     opened,
     positive_int,
@@ -55,8 +54,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "test split where the family has one, else search; search is the paper's protocol)",
     )
     add_rule_arguments(p)
-    add_provenance_argument(p)
-    add_executor_arguments(p)
+    add_audit_arguments(p)
     return p
 
 

@@ -57,13 +57,15 @@ def make_executor(args: argparse.Namespace, kind: str | None = None, workers: in
     return RayExecutor(args.ray_address, workers, args.cpus_per_task, args.gpus_per_task, args.ray_files)
 
 
-def add_provenance_argument(parser: argparse.ArgumentParser) -> None:
+def add_audit_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags every audit step's command shares: provenance, then execution."""
     parser.add_argument(
         "--strict-provenance",
         action="store_true",
         help="refuse to run if the Python, a library version, the git commit or a family file differs from "
         "what campaign.json and the audit steps already done recorded (otherwise each difference is listed)",
     )
+    add_executor_arguments(parser)
 
 
 def opened(campaign_dir, args: argparse.Namespace):

@@ -7,13 +7,7 @@ import argparse
 from autoresearch.audit.prune import NOISE_AT, Rule, prune
 from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import (
-    add_executor_arguments,
-    add_provenance_argument,
-    opened,
-    positive_int,
-    run_command,
-)
+from autoresearch.commands.common import add_audit_arguments, opened, positive_int, run_command
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -32,8 +26,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--seeds", type=positive_int, help="re-verification seeds (default: as many as verify used)"
     )
     add_rule_arguments(p)
-    add_provenance_argument(p)
-    add_executor_arguments(p)
+    add_audit_arguments(p)
     return p
 
 

@@ -9,13 +9,7 @@ from pathlib import Path
 from autoresearch.audit.random_arm import default_arm_dir, run_random_arm
 from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import (
-    add_executor_arguments,
-    add_provenance_argument,
-    opened,
-    positive_int,
-    run_command,
-)
+from autoresearch.commands.common import add_audit_arguments, opened, positive_int, run_command
 from autoresearch.family import resolve_family
 from autoresearch.space import SPACES
 
@@ -45,8 +39,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the random proposer (default 0)")
     p.add_argument("--out", type=Path, help="arm directory (default <campaign>-random[-matched] beside it)")
-    add_provenance_argument(p)
-    add_executor_arguments(p)
+    add_audit_arguments(p)
     return p
 
 

@@ -7,13 +7,7 @@ import argparse
 from autoresearch.audit.verify import verify
 from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
-from autoresearch.commands.common import (
-    add_executor_arguments,
-    add_provenance_argument,
-    opened,
-    positive_int,
-    run_command,
-)
+from autoresearch.commands.common import add_audit_arguments, opened, positive_int, run_command
 from autoresearch.splits import Split
 
 
@@ -35,8 +29,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
         "test split where the family has one, else search; search is the paper's protocol)",
     )
-    add_provenance_argument(p)
-    add_executor_arguments(p)
+    add_audit_arguments(p)
     return p
 
 
