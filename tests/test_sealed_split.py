@@ -183,7 +183,9 @@ def test_no_key_free_proposer_sees_a_test_split_value(name, sealed, tmp_path):
     settings = {"seed": 0, "timeout_per_run": 60.0, "max_iters": 4, "space": None, "random_arm": str(arm)}
     meta = CampaignMeta.new(Family.load(family.path), name, {**DEFAULTS, **settings})
     fam, proposer, _ = build_loop(meta)
-    assert leaks(json.dumps(shown_registry(fam.search_registry(), blind=False))) == []  # what build_loop hands it
+    assert (
+        leaks(json.dumps(shown_registry(fam.search_registry(), blind=False))) == []
+    )  # what build_loop hands it
     spy = Spy(proposer)
     campaign = tmp_path / "c"
     campaign.mkdir()
