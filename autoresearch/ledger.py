@@ -40,10 +40,14 @@ class Ledger:
     promotions: tuple[dict[str, Any], ...] = ()
 
     def current(self, best: dict[str, Any] | None) -> dict[str, Any] | None:
-        """The promotion behind family.json's ``best``: the last one, when it promoted that
-        configuration; None for a best the audit did not promote (or none at all)."""
+        """The promotion behind family.json's ``best``: the last one, when the best is its certified
+        number and its configuration (plus any parameter the search space gained since, set beside
+        it); None for a best the audit did not promote (or none at all)."""
         last = self.promotions[-1] if self.promotions else None
-        return last if last is not None and best and last.get("config") == best.get("config") else None
+        if last is None or not best or best.get("metric") != last.get("metric"):
+            return None
+        config = best.get("config") or {}
+        return last if all(config.get(k) == v for k, v in last.get("config", {}).items()) else None
 
     def measured(self, seed_noise: dict[str, Any]) -> Ledger:
         return replace(self, seed_noise=seed_noise)

@@ -101,6 +101,8 @@ def test_promotions_are_a_history_and_the_last_is_the_current_best():
     assert book.promotions == (first, second)
     assert book.current({"config": {"X": 2}, "metric": 1.0}) == second
     assert book.current({"config": {"X": 1}}) is None  # a best the audit did not promote last
+    assert book.current({"config": {"X": 2, "NEW": 0}, "metric": 1.0}) == second  # the space grew since
+    assert book.current({"config": {"X": 3}, "metric": 1.0}) is None
     assert book.restated({**second, "distilled": {}}).promotions == (first, {**second, "distilled": {}})
 
 
