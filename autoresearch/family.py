@@ -5,6 +5,9 @@ family directory only what its audit owns: family.json's best (its verify step) 
 seed noise, the promotions: autoresearch.ledger); campaigns and their runs live outside it
 (:meth:`Family.check_outside`). Every error names the file and field that is missing or invalid.
 
+A family may declare ``protocols``: named restrictions of its search space (``loop --protocol NAME``,
+:meth:`Family.under_protocol`), e.g. the paper's space within a wider one.
+
 A family that declares ``"test_split": true`` scores a run on a sealed test split when its
 train.py is given ``--eval-split test``. Only the audit asks for it; :meth:`Family.search_registry`
 is the registry as every proposer sees it, without a number measured on that split.
@@ -16,7 +19,7 @@ import json
 import math
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +27,7 @@ from autoresearch.direction import Direction
 from autoresearch.editable import EditableError, read_region
 from autoresearch.journal import JournalError
 from autoresearch.ledger import LEDGER_FILE, Ledger
-from autoresearch.space import SearchSpace, SpaceError, ValidationError
+from autoresearch.space import NUMERIC_TYPES, SearchSpace, SpaceError, ValidationError
 from autoresearch.splits import ScoredRun, Split
 
 REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")
@@ -148,6 +151,29 @@ class Family:
         if not all(_number(v) for v in values.values()):
             return None
         return {str(name): float(v) for name, v in values.items()}
+
+    @property
+    def protocols(self) -> tuple[str, ...]:
+        """The protocols family.json declares (``protocols``): named restrictions of its search space."""
+        return tuple(self.registry.get("protocols") or {})
+
+    def under_protocol(self, name: str | None) -> Family:
+        """This family searched under the protocol ``name`` (None: the whole declared space): every
+        parameter of an excluded axis held at its baseline value, and the protocol's bounds in place
+        of the declared ones. The train.py, the baseline and the best stay; the registry every
+        proposer is shown says which protocol it searches (``protocol``)."""
+        if name is None:
+            return self
+        if name not in self.protocols:
+            known = ", ".join(self.protocols) or "none"
+            raise FamilyError(
+                f"--protocol {name}: family {self.name!r} declares no such protocol (it declares {known})"
+            )
+        registry = json.loads(json.dumps(self.registry))
+        registry["search_space"] = protocol_space(registry, name)
+        registry["protocol"] = name
+        space = SearchSpace.from_json(registry["search_space"], self.axes)
+        return replace(self, registry=registry, space=space)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Family:
@@ -276,6 +302,7 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
         return None, problems
     if baseline.get("metric") is not None and not _number(baseline["metric"]):
         bad("baseline.metric", "must be a finite number or null")
+    problems += [f"{where}: {problem}" for problem in _protocol_problems(registry, tuple(axes))]
     return space, problems
 
 
@@ -305,6 +332,65 @@ def _train_py_problems(source: str, registry: dict[str, Any], space: SearchSpace
             + ", ".join(f"{n} ({baseline[n]!r} vs {canonical[n]!r})" for n in differing)
         ]
     return []
+
+
+def protocol_space(registry: dict[str, Any], name: str) -> dict[str, Any]:
+    """family.json's search space under its protocol ``name``: ``exclude_axes`` (each parameter of
+    those axes held at its baseline value) and ``bounds`` (per parameter, ``low``/``high`` or
+    ``choices`` in place of the declared ones; a ``random_range`` reaching outside them is dropped)."""
+    protocol = registry["protocols"][name]
+    baseline = registry["baseline"]["config"]
+    space = json.loads(json.dumps(registry["search_space"]))
+    for param, spec in space.items():
+        if spec["axis"] in protocol.get("exclude_axes", ()):
+            value = baseline[param]
+            kept = {"type": spec["type"], "axis": spec["axis"]}
+            if spec["type"] in NUMERIC_TYPES:
+                kept |= {"low": value, "high": value}
+            else:
+                kept["choices"] = [value]
+            space[param] = kept
+    for param, narrowed in protocol.get("bounds", {}).items():
+        space[param] = {**space[param], **narrowed}
+        if "high" in narrowed:
+            space[param].pop("high_exclusive", None)
+        inside = space[param].get("random_range")
+        if inside and not _within(inside, space[param]):
+            del space[param]["random_range"]
+    return space
+
+
+def _within(sub: dict[str, Any], spec: dict[str, Any]) -> bool:
+    if "choices" in sub:
+        return all(choice in spec["choices"] for choice in sub["choices"])
+    return spec["low"] <= sub["low"] and sub["high"] <= spec["high"]
+
+
+def _protocol_problems(registry: dict[str, Any], axes: tuple[str, ...]) -> list[str]:
+    """Each declared protocol must name known axes and parameters, and keep the baseline a point of
+    its space."""
+    protocols = registry.get("protocols")
+    if protocols is None:
+        return []
+    if not isinstance(protocols, dict) or not all(isinstance(p, dict) for p in protocols.values()):
+        return ["'protocols' must map names to objects"]
+    problems = []
+    for name, protocol in protocols.items():
+        unknown = set(protocol) - {"exclude_axes", "bounds"}
+        excluded = protocol.get("exclude_axes", [])
+        bounds = protocol.get("bounds", {})
+        if unknown or not isinstance(excluded, list) or not isinstance(bounds, dict):
+            problems.append(f"protocols.{name}: takes 'exclude_axes' (a list) and 'bounds' (an object) only")
+            continue
+        if set(excluded) - set(axes) or set(bounds) - set(registry["search_space"]):
+            problems.append(f"protocols.{name}: names an axis or a parameter the family does not declare")
+            continue
+        try:
+            space = SearchSpace.from_json(protocol_space(registry, name), axes)
+            space.validate_full(registry["baseline"]["config"])
+        except (SpaceError, ValidationError, TypeError, KeyError) as err:
+            problems.append(f"protocols.{name}: {err}")
+    return problems
 
 
 def search_view(registry: dict[str, Any]) -> dict[str, Any]:

@@ -97,6 +97,14 @@ class ParamSpec:
             if not (low < high or (low == high and not exclusive)):
                 raise SpaceError(f"{where}: the domain [{low}, {high}{')' if exclusive else ']'} is empty")
             fields = {"low": low, "high": high, "high_exclusive": exclusive}
+        elif kind == "bool" and "choices" in spec:  # a bool held to one value (a protocol's restriction)
+            allowed.add("choices")
+            choices = spec["choices"]
+            if not (isinstance(choices, list) and choices and all(isinstance(c, bool) for c in choices)):
+                raise SpaceError(
+                    f"{where}: a bool parameter's 'choices' must be a non-empty list of true/false"
+                )
+            fields = {"choices": tuple(dict.fromkeys(choices))}
         elif kind == "categorical":
             allowed.add("choices")
             choices = spec.get("choices")

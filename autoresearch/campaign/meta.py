@@ -102,7 +102,8 @@ class CampaignMeta:
         return [*paths, family, *above]
 
     def open_family(self, root: str | Path) -> Family:
-        """The campaign's family, found from any working directory and checked to be the one it ran."""
+        """The campaign's family, found from any working directory and checked to be the one it ran,
+        under the protocol the campaign searched (its settings' ``protocol``, if any)."""
         path = next((p for p in self.family_paths(root) if p.is_dir()), None)
         if path is None:
             tried = ", ".join(str(p) for p in self.family_paths(root)[: 2 if self.family_dir else 1])
@@ -114,7 +115,7 @@ class CampaignMeta:
             )
         family = Family.load(path)
         self.check_family(family)
-        return family
+        return family.under_protocol(self.settings.get("protocol"))
 
     @property
     def provenance(self) -> dict[str, Any] | None:

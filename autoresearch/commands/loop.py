@@ -110,6 +110,13 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         + "); kept in campaign.json",
     )
     p.add_argument(
+        "--protocol",
+        metavar="NAME",
+        help="search one of the protocols the family declares (family.json 'protocols'), e.g. 'paper': "
+        "its excluded axes held at the baseline, its bounds in place of the declared ones; kept in "
+        "campaign.json",
+    )
+    p.add_argument(
         "--campaign", help="campaign directory (default runs/<family>-<proposer>-<YYYYmmdd-HHMMSS>)"
     )
     p.add_argument("--resume", action="store_true", help="continue the campaign in --campaign")

@@ -22,7 +22,7 @@ def dry_run(meta: CampaignMeta, out: TextIO | None = None) -> int:
     if name not in ("anthropic", "openai"):
         raise ValueError(f"--dry-run shows an LLM's request; the {name!r} proposer sends none")
     sdk = require(name, "llm", f"--proposer {name}")  # the SDK builds the request it would send
-    family = resolve_family(meta.family)
+    family = resolve_family(meta.family).under_protocol(settings.get("protocol"))
     blind = settings["blind"]
     client = (
         sdk.Anthropic(api_key="dry-run")

@@ -49,6 +49,7 @@ DEFAULTS: dict[str, Any] = {
     "random_arm": None,
     "enqueue": None,
     "space": None,  # key-free proposers: None searches DEFAULT_SPACE[proposer]
+    "protocol": None,  # one of the family's declared protocols (Family.under_protocol); None: its whole space
     "workers": 1,
     "executor": "local",
     "early_stop": "none",
@@ -120,7 +121,7 @@ def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
     """What a campaign.json runs: its family, its proposer and the loop's settings."""
     settings = meta.settings
     _check_key(meta.proposer, settings)
-    family = resolve_family(meta.family)
+    family = resolve_family(meta.family).under_protocol(settings["protocol"])
     proposer = make_proposer(
         meta.proposer,
         shown_registry(family.search_registry(), settings["blind"]),
