@@ -21,6 +21,16 @@ optimised: ``effort_ratio`` (sum of |u|^2 dt, the quantity the expert minimises)
 ``delta_v_ratio`` over the expert's own from the same starts. ``dispersed`` is the Monte Carlo
 auxiliary: success and violation rates of the same policy on the same starts under DISPERSIONS
 (thrust, mass and navigation errors; cwh_envs.dispersions); it never enters the score.
+
+Levers beyond the paper's behaviour cloning (the ``algorithm`` axis; their defaults are plain
+BC): POLICY_FORM = "residual" makes the network a bounded correction added to the closed-form
+shrinking-horizon minimum-energy law toward the observed goal, whose gain table is part of the
+policy (cwh_envs.controllers.MinEnergyFeedback); DAGGER_ITERS > 0 runs DAgger rounds: fly the
+policy as deployed from training starts, relabel every visited state with the expert over the
+remaining horizon (receding-horizon MPC, cwh_envs.mpc, whose soft re-plan labels the states the
+hard expert cannot answer from), add them to the training set and train on. BOX_AWARE_LOSS stops
+penalising an output beyond the thrust box where the expert's action is at the box (the env clips
+both to the same thrust).
 """
 
 from __future__ import annotations
@@ -40,7 +50,10 @@ import torch
 from filelock import FileLock
 from torch import nn
 
+from cwh_envs.controllers import min_energy_gains
 from cwh_envs.datasets import Demonstrations, demonstrations, evaluation_set, recovery_demonstrations
+from cwh_envs.mpc import RecedingHorizon
+from cwh_envs.observations import docking_observation
 from cwh_envs.problems import DockingProblem
 from cwh_envs.rollout import Flight, control_effort
 from cwh_envs.rollout import fly as fly_policy
@@ -58,13 +71,18 @@ ACTIVATION = "tanh"  # hidden nonlinearity: "tanh", "relu" or "gelu"
 DROPOUT = 0.0  # dropout probability after each hidden layer (training only)
 RUNTIME_CBF_FILTER = True  # fly through the two-step predictive CBF safety filter
 RECOVERY_AUGMENT_FRAC = 0.0  # recovery trajectories added, as a fraction of N_DEMOS
+POLICY_FORM = "direct"  # "direct": the network is the policy; "residual": a correction to the closed-form law
+RESIDUAL_SCALE = 1.0  # residual form: the correction's bound per axis, a fraction of u_max (tanh-squashed)
+BOX_AWARE_LOSS = False  # True: where the expert rides the thrust box, any output beyond it counts as exact
+DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour cloning)
+DAGGER_STARTS = 256  # training starts flown (and every visited state relabelled) per DAgger round
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
 METRIC = "score"
 PROBLEM = DockingProblem()  # every constant: horizon, u_max, keep-out, margin, thresholds, (A, B)
 VIOLATION_WEIGHT = 10.0  # Eq. rpo_score: one sustained violation outweighs the accuracy budget
-POOL_DEMOS = 256  # the N_DEMOS upper bound: one fixed pool, so a warm cache covers every config
+POOL_DEMOS = 2048  # the N_DEMOS upper bound: one fixed pool (nested: its first N are the same for any size)
 MAX_RECOVERY_FRAC = 0.5  # the RECOVERY_AUGMENT_FRAC upper bound
 POOL_RECOVERY = round(MAX_RECOVERY_FRAC * POOL_DEMOS)  # recovery trajectories: also one fixed pool
 N_EVAL = 128  # held-out, screened far-side evaluation starts: the search split
@@ -77,6 +95,8 @@ DISPERSION_SEED = 0  # episode i of a split draws its dispersions from seed DISP
 PROGRESS_POINTS = 4  # PROGRESS lines per run, at evenly spaced epochs (the last one included)
 DATA_SEED = 0  # the pools do not move with --seed; the seed varies only initialisation and batching
 TORCH_THREADS = 1  # fixed: reproducible on any host, and the audit runs two trainings on two cores
+TIME_BUDGET_VARIABLE = "AUTORESEARCH_TIME_BUDGET"  # seconds of training the loop grants a run (unset: none)
+RUNAWAY_DISTANCE = 120.0  # m: a start ending farther from its target than the farthest start began ran away
 SUCCESS_GATE = 0.80  # strict feasibility: success rate floor (with zero violations, clearance >= 0)
 OBS_DIM, ACT_DIM = 10, 3
 CONFIG_NAMES = (
@@ -92,15 +112,34 @@ CONFIG_NAMES = (
     "DROPOUT",
     "RUNTIME_CBF_FILTER",
     "RECOVERY_AUGMENT_FRAC",
+    "POLICY_FORM",
+    "RESIDUAL_SCALE",
+    "BOX_AWARE_LOSS",
+    "DAGGER_ITERS",
+    "DAGGER_STARTS",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
+POLICY_FORMS = ("direct", "residual")
+MAX_DAGGER_ITERS = 8
 
 
 class Policy(nn.Module):
-    """MLP on standardised observations; outputs thrust / u_max. ``act`` returns the env action (thrust / u_max, clipped)."""
+    """MLP on standardised observations; outputs thrust / u_max. ``act`` returns the env action (thrust / u_max, clipped).
+
+    The residual form outputs ``law(obs) + RESIDUAL_SCALE tanh(net(obs))``, the law being the
+    closed-form minimum-energy feedback to the observed goal from its gain table (buffers: float64,
+    and exported with the policy); with a zero correction it flies the law exactly. The law ignores
+    every constraint: the correction learns the detour, the filter (if on) guards the rest.
+    """
 
     def __init__(self, config: dict, obs_mean: torch.Tensor, obs_std: torch.Tensor, u_max: float):
         super().__init__()
+        self.residual = config.get("POLICY_FORM", "direct") == "residual"
+        if self.residual:
+            gains = min_energy_gains(PROBLEM)
+            self.register_buffer("target_gain", torch.tensor(gains.target_gain[:, :, :3]))  # (H+1, 3, 3)
+            self.register_buffer("state_gain", torch.tensor(gains.state_gain))  # (H+1, 3, 6): L_m
+            self.scale = float(config["RESIDUAL_SCALE"])
         layers, width = [], OBS_DIM
         for _ in range(config["N_LAYERS"]):
             layers += [
@@ -114,14 +153,32 @@ class Policy(nn.Module):
         self.register_buffer("obs_std", obs_std.float())
         self.u_max = u_max
 
-    def forward(self, standardised_obs: torch.Tensor) -> torch.Tensor:
-        return self.net(standardised_obs)
+    def forward(self, standardised_obs: torch.Tensor, obs: torch.Tensor | None = None) -> torch.Tensor:
+        """Unclipped thrust / u_max; the residual form's (float64) law reads ``obs`` (float64, as
+        shown by the env), else the observations recovered from the standardised ones (the ONNX
+        graph's path)."""
+        out = self.net(standardised_obs)
+        if not self.residual:
+            return out
+        if obs is None:
+            obs = standardised_obs.double() * self.obs_std.double() + self.obs_mean.double()
+        return self.law(obs) + self.scale * torch.tanh(out.double())  # float64: the law flies exactly
+
+    def law(self, obs: torch.Tensor) -> torch.Tensor:
+        """The closed-form law's thrust / u_max (unclipped), ``K_m g - L_m x`` with m = round(tau H)
+        steps to go and g the observed goal."""
+        steps = torch.round(obs[:, -1] * PROBLEM.horizon).long().clamp(1, PROBLEM.horizon)
+        toward = self.target_gain[steps] @ obs[:, 6:9, None] - self.state_gain[steps] @ obs[:, :6, None]
+        return toward.squeeze(-1) / self.u_max
 
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Observations (N, 10) as the env shows them -> actions (N, 3) as it takes them: thrust / u_max in [-1, 1]."""
         x = torch.as_tensor(obs, dtype=torch.float32, device=self.obs_mean.device)
-        return np.clip(self((x - self.obs_mean) / self.obs_std).double().cpu().numpy(), -1.0, 1.0)
+        raw = (
+            torch.as_tensor(obs, dtype=torch.float64, device=self.obs_mean.device) if self.residual else None
+        )
+        return np.clip(self((x - self.obs_mean) / self.obs_std, raw).double().cpu().numpy(), -1.0, 1.0)
 
 
 def build_policy(config: dict, obs_mean=None, obs_std=None) -> Policy:
@@ -135,7 +192,7 @@ def load_policy(path: str | os.PathLike) -> tuple[Policy, dict]:
     """A saved policy (an --out directory or its policy.pt), in eval mode, and the saved dict."""
     path = Path(path)
     saved = torch.load(path / "policy.pt" if path.is_dir() else path, map_location="cpu", weights_only=True)
-    policy = build_policy(saved["config"], saved["obs_mean"], saved["obs_std"])
+    policy = build_policy(saved["config"], saved["obs_mean"], saved["obs_std"])  # older configs: direct
     policy.load_state_dict(saved["state_dict"])
     return policy.eval(), saved
 
@@ -162,6 +219,19 @@ def check_config(config: dict) -> None:
     frac = config["RECOVERY_AUGMENT_FRAC"]
     if not (isinstance(frac, int | float) and 0 <= frac <= MAX_RECOVERY_FRAC):
         problems.append(f"RECOVERY_AUGMENT_FRAC must lie in [0, {MAX_RECOVERY_FRAC}]")
+    if config["POLICY_FORM"] not in POLICY_FORMS:
+        problems.append(f"POLICY_FORM must be one of {list(POLICY_FORMS)}")
+    scale = config["RESIDUAL_SCALE"]
+    if not (isinstance(scale, int | float) and not isinstance(scale, bool) and 0 < scale <= 10):
+        problems.append("RESIDUAL_SCALE must lie in (0, 10]")
+    if not isinstance(config["BOX_AWARE_LOSS"], bool):
+        problems.append("BOX_AWARE_LOSS must be True or False")
+    iters = config["DAGGER_ITERS"]
+    if not (isinstance(iters, int) and not isinstance(iters, bool) and 0 <= iters <= MAX_DAGGER_ITERS):
+        problems.append(f"DAGGER_ITERS must be an int in [0, {MAX_DAGGER_ITERS}]")
+    starts, bound = config["DAGGER_STARTS"], POOL_DEMOS if iters else math.inf  # the pool's starts are flown
+    if not (isinstance(starts, int) and not isinstance(starts, bool) and 1 <= starts <= bound):
+        problems.append(f"DAGGER_STARTS must be an int in [1, {POOL_DEMOS}] with DAgger on")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -192,15 +262,71 @@ def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray, dict]:
     return np.concatenate(obs), np.concatenate(actions), keys
 
 
-def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.device, seed: int, report=None):
-    """MSE behaviour cloning (Eq. bc_loss); returns the policy and the best epoch-mean loss.
+def box_aware(error: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The action error that matters once the env clips to the box: where the expert's thrust is at
+    the box (+-1 in u_max units), an output beyond it flies the same action and costs nothing."""
+    upper, lower = target >= 1.0 - 1e-6, target <= -1.0 + 1e-6
+    return torch.where(upper, error.clamp(max=0.0), torch.where(lower, error.clamp(min=0.0), error))
 
-    ``report(epoch, policy)`` is called, the policy in eval mode, at PROGRESS_POINTS evenly spaced epochs.
+
+class Budget:
+    """The run's training-time budget (TIME_BUDGET_VARIABLE, seconds): training stops at the first
+    gradient step past it, and the run is scored as it stands (``budget_exhausted`` in the record)."""
+
+    def __init__(self, seconds: float | None):
+        self.seconds, self.started, self.exhausted = seconds, None, False
+
+    def start(self) -> None:
+        """The clock runs from here: training time only (data and evaluation are the loop's allowance)."""
+        self.started = time.perf_counter()
+
+    @classmethod
+    def from_environment(cls) -> Budget:
+        text = os.environ.get(TIME_BUDGET_VARIABLE)
+        if text is None:
+            return cls(None)
+        try:
+            seconds = float(text)
+        except ValueError:
+            seconds = math.nan
+        if not (math.isfinite(seconds) and seconds > 0):
+            raise SystemExit(
+                f"train.py: {TIME_BUDGET_VARIABLE} must be a positive number of seconds, got {text!r}"
+            )
+        return cls(seconds)
+
+    def spent(self) -> bool:
+        if self.seconds is not None and time.perf_counter() - self.started >= self.seconds:
+            self.exhausted = True
+        return self.exhausted
+
+
+def train(
+    config: dict,
+    obs: np.ndarray,
+    actions: np.ndarray,
+    device: torch.device,
+    generator: torch.Generator,
+    report=None,
+    policy: Policy | None = None,
+    first_epoch: int = 0,
+    budget: Budget | None = None,
+):
+    """MSE behaviour cloning (Eq. bc_loss) for EPOCHS epochs; returns the policy and the best
+    epoch-mean loss. ``policy`` goes on training a policy (a DAgger round: its standardisation is
+    kept), its epochs numbered from ``first_epoch``. A spent ``budget`` ends it at that step.
+
+    ``report(epoch, policy)`` is called, the policy in eval mode, at PROGRESS_POINTS evenly spaced
+    epochs of the whole run (every DAgger round included).
     """
-    mean, std = obs.mean(axis=0), obs.std(axis=0)
-    std = np.where(std > 1e-8, std, 1.0)  # a constant input column stays finite
-    policy = build_policy(config, mean, std).to(device)
+    if policy is None:
+        mean, std = obs.mean(axis=0), obs.std(axis=0)
+        std = np.where(std > 1e-8, std, 1.0)  # a constant input column stays finite
+        policy = build_policy(config, mean, std).to(device)
+    else:
+        mean, std = policy.obs_mean.double().cpu().numpy(), policy.obs_std.double().cpu().numpy()
     x = torch.as_tensor((obs - mean) / std, dtype=torch.float32, device=device)
+    raw = torch.as_tensor(obs, dtype=torch.float64, device=device) if policy.residual else None
     y = torch.as_tensor(actions / PROBLEM.u_max, dtype=torch.float32, device=device)
     optimizer = torch.optim.AdamW(
         policy.parameters(), lr=config["LEARNING_RATE"], weight_decay=config["WEIGHT_DECAY"]
@@ -211,32 +337,95 @@ def train(config: dict, obs: np.ndarray, actions: np.ndarray, device: torch.devi
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total_steps))
     )
-    generator = torch.Generator(device="cpu").manual_seed(seed)
     best_loss = math.inf
-    progress_epochs = {
-        math.ceil(config["EPOCHS"] * k / PROGRESS_POINTS) for k in range(1, PROGRESS_POINTS + 1)
-    }
+    run_epochs = config["EPOCHS"] * (1 + config["DAGGER_ITERS"])
+    progress_epochs = {math.ceil(run_epochs * k / PROGRESS_POINTS) for k in range(1, PROGRESS_POINTS + 1)}
     policy.train()
     for epoch in range(config["EPOCHS"]):
         order = torch.randperm(len(x), generator=generator).to(device)
-        epoch_loss = torch.zeros((), device=device)
+        epoch_loss, seen = torch.zeros((), device=device), 0
         for start in range(0, len(x), config["BATCH_SIZE"]):
             batch = order[start : start + config["BATCH_SIZE"]]
-            loss = (policy(x[batch]) - y[batch]).square().sum(dim=1).mean()
+            error = policy(x[batch], None if raw is None else raw[batch]) - y[batch]
+            if config["BOX_AWARE_LOSS"]:
+                error = box_aware(error, y[batch])
+            loss = error.square().sum(dim=1).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             nn.utils.clip_grad_norm_(policy.parameters(), config["GRAD_CLIP"])
             optimizer.step()
             schedule.step()
             epoch_loss += loss.detach() * len(batch)
-        epoch_loss = epoch_loss.item() / len(x)
+            seen += len(batch)
+            if budget is not None and budget.spent():
+                break
+        epoch_loss = epoch_loss.item() / seen
         if not math.isfinite(epoch_loss):
-            raise SystemExit(f"train.py: training diverged: loss is {epoch_loss} at epoch {epoch + 1}")
+            raise SystemExit(
+                f"train.py: training diverged: loss is {epoch_loss} at epoch {first_epoch + epoch + 1}"
+            )
         best_loss = min(best_loss, epoch_loss)
-        if report is not None and (epoch + 1) in progress_epochs:
-            report(epoch + 1, policy.eval())  # eval mode and no RNG draw: training is not altered
+        if report is not None and (first_epoch + epoch + 1) in progress_epochs:
+            report(
+                first_epoch + epoch + 1, policy.eval()
+            )  # eval mode and no RNG draw: training is not altered
             policy.train()
+        if budget is not None and budget.exhausted:
+            break
     return policy.eval(), best_loss
+
+
+def dagger(config: dict, policy: Policy, obs, actions, device, generator, report, budget: Budget):
+    """DAGGER_ITERS rounds of DAgger after the first training: fly the policy as it is deployed (the
+    filter on if RUNTIME_CBF_FILTER) from the first DAGGER_STARTS starts of the training pool,
+    relabel every state it visits with the expert over the remaining horizon, add those pairs to the
+    training set and train EPOCHS more epochs. Returns the policy, its best loss, the training-set
+    size and the relabelling's counts."""
+    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM)
+    starts, goals = pool.starts[: config["DAGGER_STARTS"]], pool.goals[: config["DAGGER_STARTS"]]
+    counts = {"rounds": config["DAGGER_ITERS"], "starts": len(starts), "relabelled_states": 0}
+    counts |= {"hard_labels": 0, "soft_labels": 0, "fallback_labels": 0, "last_step_law_labels": 0}
+    counts["relabel_seconds"] = 0.0
+    best_loss = math.inf
+    for round_ in range(1, config["DAGGER_ITERS"] + 1):
+        if budget.spent():
+            counts["rounds"] = round_ - 1
+            break
+        started = time.perf_counter()
+        new_obs, new_actions, labels = relabel(fly(policy, starts, goals, config["RUNTIME_CBF_FILTER"]))
+        counts["relabel_seconds"] += time.perf_counter() - started
+        for key, value in labels.items():
+            counts[key] += value
+        obs, actions = np.concatenate([obs, new_obs]), np.concatenate([actions, new_actions])
+        policy, best_loss = train(
+            config, obs, actions, device, generator, report, policy, round_ * config["EPOCHS"], budget
+        )
+    counts["relabel_seconds"] = round(counts["relabel_seconds"], 3)
+    return policy, best_loss, len(obs), counts
+
+
+def relabel(flight: Flight) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Observations (N H, 10) of every state a flight visited (steps 0..H-1) and the expert's thrust
+    [N] there: receding-horizon MPC flown over the visited states in time order, so that each state
+    gets the first control of the expert re-solved over the steps left, warm-started from the same
+    start's previous label; the soft expert (every constraint and the terminal state as penalties)
+    where the hard one cannot answer, and at the last step the closed-form law's one-step control."""
+    expert = RecedingHorizon(PROBLEM)
+    horizon = PROBLEM.horizon
+    obs = [
+        docking_observation(flight.states[:, k], flight.goals, k, horizon, dtype=np.float64)
+        for k in range(horizon)
+    ]
+    thrust = [expert(o) * PROBLEM.u_max for o in obs]
+    n = len(flight.states)
+    labels = {
+        "relabelled_states": n * horizon,
+        "hard_labels": int(expert.solves.sum() - expert.infeasible.sum()),
+        "soft_labels": int(expert.soft.sum()),
+        "fallback_labels": int(expert.fallbacks.sum()),
+        "last_step_law_labels": n,
+    }
+    return np.concatenate(obs), np.concatenate(thrust), labels
 
 
 def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool, dispersions=None) -> Flight:
@@ -282,6 +471,7 @@ def docking_metrics(flight: Flight, expert_thrust: np.ndarray) -> dict:
         "violating_starts": int((violation > 0).sum()),
         "median_terminal_distance": float(np.median(terminal_distance)),
         "max_terminal_distance": float(terminal_distance.max()),
+        "runaway_share": float((terminal_distance > RUNAWAY_DISTANCE).mean()),
         "mean_terminal_speed": float(flight.terminal_speed.mean()),
         "effort_ratio": float(energy.sum() / expert_energy.sum()),
         "delta_v_ratio": float(delta_v.sum() / expert_delta_v.sum()),
@@ -341,6 +531,7 @@ def main() -> None:
     args = parser.parse_args()
     config = {name: globals()[name] for name in CONFIG_NAMES}
     check_config(config)
+    budget = Budget.from_environment()
     run_id = args.run_id or uuid.uuid4().hex[:12]
     device = seed_everything(args.seed)
     cbf = config["RUNTIME_CBF_FILTER"]
@@ -355,7 +546,14 @@ def main() -> None:
         print("PROGRESS: " + json.dumps({"step": epoch, METRIC: value}, allow_nan=False), flush=True)
 
     started = time.perf_counter()
-    policy, best_loss = train(config, obs, actions, device, args.seed, report)
+    generator = torch.Generator(device="cpu").manual_seed(args.seed)
+    budget.start()
+    policy, best_loss = train(config, obs, actions, device, generator, report, budget=budget)
+    n_train_pairs, dagger_counts = len(obs), None
+    if config["DAGGER_ITERS"]:
+        policy, best_loss, n_train_pairs, dagger_counts = dagger(
+            config, policy, obs, actions, device, generator, report, budget
+        )
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
     splits = {"search": evaluate(policy, search, cbf)}
@@ -374,7 +572,9 @@ def main() -> None:
         "train_seconds": round(train_seconds, 3),
         "eval_seconds": round(eval_seconds, 3),
         "n_params": sum(p.numel() for p in policy.parameters()),
-        "n_train_pairs": len(obs),
+        "n_train_pairs": n_train_pairs,
+        **({"dagger": dagger_counts} if dagger_counts else {}),
+        **({"time_budget": budget.seconds, "budget_exhausted": budget.exhausted} if budget.seconds else {}),
         "seed": args.seed,
         "datasets": datasets,
         "config": config,

@@ -1,0 +1,206 @@
+"""The families' algorithm axis (POLICY_FORM, RESIDUAL_SCALE, DAGGER_ITERS, DAGGER_STARTS): the
+defaults are the paper's behaviour cloning, a residual with a zero correction is the closed-form
+law, and DAgger's labels are the expert re-solved from the visited states."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from test_families import family_copy, final_metric, run
+
+from cwh_envs import experts
+from cwh_envs.controllers import MinEnergyFeedback, pd_action
+from cwh_envs.datasets import evaluation_starts
+from cwh_envs.prepare import load_train
+from cwh_envs.rollout import fly
+
+ROOT = Path(__file__).resolve().parents[1]
+FAMILIES = ("rendezvous", "docking", "docking-constrained")
+
+
+def run_with(script: Path, tmp_path: Path, env: dict, *args: str) -> subprocess.CompletedProcess:
+    """train.py in a subprocess with extra environment variables (the private cache of the tests)."""
+    full = {**os.environ, "CWH_ENVS_CACHE": str(tmp_path / "cache"), "OMP_NUM_THREADS": "1", **env}
+    return subprocess.run(
+        [sys.executable, str(script), *args],
+        cwd=script.parent,
+        env=full,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+@pytest.fixture(scope="module")
+def trains():
+    return {name: load_train(ROOT / "families" / name) for name in FAMILIES}
+
+
+def defaults(train) -> dict:
+    return {name: getattr(train, name) for name in train.CONFIG_NAMES}
+
+
+def starts_of(train, n: int):
+    starts, goals = evaluation_starts(
+        train.TASK,
+        n,
+        train.PROBLEM.replace(speed_limit=None, approach_cone=None)
+        if train.TASK == "docking"
+        else train.PROBLEM,
+    )
+    return starts, (goals if train.TASK == "docking" else None)
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_the_defaults_are_plain_behaviour_cloning(trains, name):
+    config = defaults(trains[name])
+    assert config["POLICY_FORM"] == "direct" and config["DAGGER_ITERS"] == 0
+    family = json.loads((ROOT / "families" / name / "family.json").read_text())
+    assert {k: config[k] for k in family["baseline"]["config"]} == family["baseline"]["config"]
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_a_residual_with_a_zero_correction_flies_the_closed_form_law(trains, name):
+    train = trains[name]
+    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 8, "N_LAYERS": 1}
+    policy = train.build_policy(config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5)
+    with torch.no_grad():
+        policy.net[-1].weight.zero_()
+        policy.net[-1].bias.zero_()
+    starts, goals = starts_of(train, 3)
+    law = MinEnergyFeedback(train.PROBLEM)
+    learned = fly(train.PROBLEM, policy.act, starts, goals)
+    closed_form = fly(train.PROBLEM, law, starts, goals)
+    np.testing.assert_allclose(learned.states, closed_form.states, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(learned.thrust, closed_form.thrust, rtol=0, atol=1e-12)
+    # and the correction moves it, within its bound
+    with torch.no_grad():
+        policy.net[-1].bias.fill_(10.0)  # tanh -> 1: the law plus RESIDUAL_SCALE on every axis
+    obs = closed_form.states[:, 5]
+    observed = np.concatenate(
+        [obs, *([closed_form.goals] if goals is not None else []), np.full((3, 1), 0.5)], axis=1
+    )
+    np.testing.assert_allclose(
+        policy.act(observed),
+        np.clip(law.thrust(observed) / train.PROBLEM.u_max + config["RESIDUAL_SCALE"], -1, 1),
+        atol=1e-6,
+    )
+
+
+def test_the_onnx_export_carries_the_law(trains, tmp_path):
+    onnx_policy = pytest.importorskip("cwh_envs.onnx_policy")
+    train = trains["docking"]
+    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 8, "N_LAYERS": 1}
+    starts, goals = starts_of(train, 2)
+    obs = fly(train.PROBLEM, MinEnergyFeedback(train.PROBLEM), starts, goals).states.reshape(-1, 6)
+    mean = np.r_[obs.mean(0), goals.mean(0), 0.5]
+    std = np.r_[obs.std(0), goals.std(0) + 1.0, 0.3]
+    policy = train.build_policy(config, torch.as_tensor(mean), torch.as_tensor(std))
+    source = tmp_path / "policy.pt"
+    source.write_bytes(b"weights")
+    summary = onnx_policy.export_checked(policy, tmp_path / "p.onnx", {"task": "docking"}, source)
+    assert summary["max_action_difference"] <= 1e-5
+
+
+@pytest.mark.parametrize("name", ["rendezvous", "docking"])
+def test_dagger_labels_are_the_expert_resolved_from_the_visited_states(trains, name):
+    """A PD flight's visited states, relabelled: at every state the label is the first control of
+    the expert solved from that state over the steps left (where the hard expert answers; the
+    docking SCP to its own tolerance), the last step the law's."""
+    train = trains[name]
+    problem = train.PROBLEM
+    starts, goals = starts_of(train, 2)
+    flight = fly(
+        problem,
+        lambda obs: pd_action(obs, problem),
+        starts,
+        goals,
+        cbf_margin=problem.margin if goals is not None else None,
+    )
+    obs, thrust, labels = train.relabel(flight)
+    horizon = problem.horizon
+    assert len(obs) == len(thrust) == 2 * horizon == labels["relabelled_states"]
+    assert labels["hard_labels"] + labels["soft_labels"] + labels["fallback_labels"] == 2 * (horizon - 1)
+    checked = 0
+    for k in range(0, horizon - 1, 1 if name == "rendezvous" else 29):
+        for i in range(2):
+            row = k * 2 + i
+            state = flight.states[i, k]
+            try:
+                if goals is None:
+                    _, controls = experts.solve_rendezvous(state, problem, horizon=horizon - k)
+                    tolerance = 1e-9
+                else:
+                    _, controls = experts.solve_docking(state, goals[i], problem, horizon=horizon - k)
+                    tolerance = 1e-3
+            except experts.Infeasible:
+                continue
+            np.testing.assert_allclose(thrust[row], controls[0], rtol=0, atol=tolerance)
+            np.testing.assert_allclose(obs[row, :6], state)
+            checked += 1
+    assert checked >= (100 if name == "rendezvous" else 10)
+    last = obs[-2:]
+    law = np.clip(MinEnergyFeedback(problem).thrust(last), -problem.u_max, problem.u_max)
+    np.testing.assert_allclose(thrust[-2:], law, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["rendezvous", "docking"])
+def test_a_dagger_residual_run_reports_its_relabelling(tmp_path, name):
+    family = family_copy(
+        name,
+        tmp_path,
+        N_DEMOS=4,
+        EPOCHS=2,
+        BATCH_SIZE=64,
+        HIDDEN_DIM=16,
+        N_LAYERS=1,
+        POLICY_FORM='"residual"',
+        DAGGER_ITERS=2,
+        DAGGER_STARTS=3,
+    )
+    result = run(family / "train.py", "--out", str(tmp_path / "out"), cache=tmp_path / "cache", check=True)
+    record = final_metric(result.stdout)
+    counts = record["dagger"]
+    horizon = load_train(family).PROBLEM.horizon
+    assert counts["rounds"] == 2 and counts["starts"] == 3
+    assert counts["relabelled_states"] == 2 * 3 * horizon
+    assert record["n_train_pairs"] == 4 * horizon + counts["relabelled_states"]
+    progress = [
+        json.loads(line.split(": ", 1)[1])
+        for line in result.stdout.splitlines()
+        if line.startswith("PROGRESS")
+    ]
+    assert [p["step"] for p in progress] == sorted({p["step"] for p in progress}) and progress[-1][
+        "step"
+    ] == 6
+
+
+def test_a_bad_lever_is_refused_in_one_line(tmp_path):
+    family = family_copy("rendezvous", tmp_path, POLICY_FORM='"mixed"', DAGGER_ITERS=99)
+    result = run(family / "train.py", cache=tmp_path / "cache")
+    assert result.returncode != 0
+    assert "POLICY_FORM must be one of" in result.stderr and "DAGGER_ITERS must be an int" in result.stderr
+
+
+def test_a_time_budget_cuts_training_and_the_run_is_scored_as_it_stands(tmp_path):
+    """AUTORESEARCH_TIME_BUDGET: training stops at the first step past it, the policy is scored on
+    the split as usual and the record says it was cut; without the variable nothing changes."""
+    family = family_copy("rendezvous", tmp_path, N_DEMOS=8, EPOCHS=100000, BATCH_SIZE=16)
+    result = run_with(
+        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "1.5"}, "--out", str(tmp_path / "out")
+    )
+    assert result.returncode == 0, result.stderr
+    record = final_metric(result.stdout)
+    assert record["budget_exhausted"] is True and record["time_budget"] == 1.5
+    assert 1.5 <= record["train_seconds"] < 30
+    assert math.isfinite(record["mean_terminal_distance"]) and "runaway_share" in record
+    refused = run_with(family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "-3"})
+    assert refused.returncode != 0 and "AUTORESEARCH_TIME_BUDGET must be a positive number" in refused.stderr
