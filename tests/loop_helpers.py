@@ -12,6 +12,7 @@ from autoresearch.family import Family
 from autoresearch.journal import read_jsonl
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator, Outcome
 from autoresearch.loop.stopping import Budgets
+from autoresearch.loop.warm_start import WarmStart
 from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, RunOutcome, Usage
 from autoresearch.templates import MINIMAL_TEMPLATE
 
@@ -84,6 +85,8 @@ def run_loop(
     workers: int = 1,
     early_stop: str = "none",
     executor: Executor | None = None,
+    time_budget: float | None = None,
+    warm_start: WarmStart | None = None,
     **budgets: Any,
 ) -> tuple[Outcome, list[dict[str, Any]]]:
     budgets.setdefault("max_iters", 30)
@@ -94,6 +97,8 @@ def run_loop(
         timeout_per_run=timeout,
         workers=workers,
         early_stop=early_stop,
+        time_budget=time_budget,
+        warm_start=warm_start,
     )
     outcome = Orchestrator(Family.load(family_dir), proposer, campaign, settings, executor=executor).run()
     return outcome, read_jsonl(campaign / "proposals.jsonl")

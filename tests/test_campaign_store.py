@@ -62,7 +62,7 @@ def test_every_committed_campaign_loads_and_checks_clean(root):
 
 def test_the_write_path_computes_the_verdict_and_the_best_so_far_once(tmp_path):
     toy = copy_toy(tmp_path)
-    run_loop(toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "c", max_iters=3)
+    run_loop(toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "c", max_iters=3, stop_at_target=True)
     store = Campaign(tmp_path / "c")
     records = store.records()
     assert [r.status for r in records] == [Status.RAN, Status.RAN, Status.STOPPED]

@@ -3,17 +3,19 @@
 import json
 
 import pytest
-from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
+from loop_helpers import TOY_FAMILY, TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
 
 from autoresearch.audit.inputs import AuditedCampaign
 from autoresearch.audit.verify import rank_candidates
-from autoresearch.campaign import Campaign, CampaignState
+from autoresearch.campaign import Campaign, CampaignState, Record, Status
 from autoresearch.direction import Direction
 from autoresearch.execution.protocol import parse_progress
 from autoresearch.family import Family
 from autoresearch.loop.context import build_context
 from autoresearch.loop.early_stop import EarlyStopper
+from autoresearch.proposers.base import ProposerContext, RunOutcome
 from autoresearch.proposers.prompting import render_prompt
+from autoresearch.proposers.tpe import TPEProposer
 
 # Slow to learn and far from the optimum: a curve clearly worse than the finished runs' at step 1.
 HOPELESS = {"LEARNING_RATE": 0.0001, "MOMENTUM": 0.0, "EPOCHS": 1, "BATCH_SIZE": 128}
@@ -91,3 +93,43 @@ def test_a_family_without_progress_lines_runs_as_before(tmp_path):
     assert [[r[k] for k in keys] for r in pruned] == [[r[k] for k in keys] for r in plain]
     assert all(r["progress"] is None for r in pruned) and pruned[5]["status"] == "ran"
     assert json.loads((tmp_path / "b" / "runs" / "it0006" / "result.json").read_text())["progress"] is None
+
+
+def _finished(iteration: int, loss: float) -> Record:
+    curve = [{"step": step, "value": loss * (2 - step / 4)} for step in range(1, 5)]
+    return Record(iteration, Status.RAN, run_id=f"it{iteration:04d}", metric=loss, progress=curve)
+
+
+def test_hyperband_stops_a_hopeless_curve_and_rebuilds_its_rungs_on_resume():
+    """Optuna's HyperbandPruner, fed as the other pruners are; on --resume the finished curves are
+    replayed through it, so its rungs hold their values again (without them nothing is pruned)."""
+    records = [_finished(1, 0.86), *(_finished(i, 0.1 + 0.01 * i) for i in range(2, 11))]
+    stopper = EarlyStopper("hyperband", Direction.MINIMIZE, records)
+    assert type(stopper.study.pruner).__name__ == "HyperbandPruner"
+    rungs = [k for t in stopper.study.trials for k in t.system_attrs if k.startswith("completed_rung")]
+    assert rungs  # the replay set them
+    stopped = []
+    for n in range(3):
+        report = stopper.start(f"hopeless{n}")
+        stopped.append(any(report(step, 3.0 * (2 - step / 4)) for step in range(1, 5)))
+    assert all(stopped)
+    # A curve as good as the best finished one goes on.
+    report = stopper.start("good")
+    assert not any(report(step, 0.1 * (2 - step / 4)) for step in range(1, 5))
+
+
+def test_an_early_stopped_run_is_a_pruned_trial_for_tpe_with_its_curve():
+    registry = Family.load(TOY_FAMILY).search_registry()
+    tpe = TPEProposer(registry, seed=0)
+    baseline = Family.load(TOY_FAMILY).baseline_config
+    tpe.tell(RunOutcome(baseline, 0.8, True, {"step_excess": -1.0}, seconds=2.0))
+    tpe.tell(RunOutcome({**baseline, "EPOCHS": 40}, None, False, curve={1: 3.0, 2: 2.5}, seconds=0.7))
+    complete, pruned = tpe.trials
+    assert complete.state.name == "COMPLETE" and complete.user_attrs["seconds"] == 2.0
+    assert pruned.state.name == "PRUNED" and pruned.intermediate_values == {1: 3.0, 2: 2.5}
+    assert pruned.user_attrs == {"seconds": 0.7, "budget_exhausted": False}
+    # not told at the crash cost any more: Optuna's TPE ranks it by how far it got
+    assert (
+        pruned.value is None
+        and tpe.propose(ProposerContext.of_configs(3, registry, [], baseline)).kind == "propose"
+    )

@@ -42,12 +42,18 @@ def test_successful_runs_cap_counts_only_successes(toy, tmp_path):
 
 
 def test_target_reached_by_a_feasible_run_and_precedence(toy, tmp_path):
-    _, records = run_loop(toy, ScriptedProposer([TOY_OPTIMUM, {"EPOCHS": 11}]), tmp_path / "a")
+    script = [TOY_OPTIMUM, {"EPOCHS": 11}]
+    _, records = run_loop(toy, ScriptedProposer(list(script)), tmp_path / "a", stop_at_target=True)
     assert statuses(records) == ["ran", "ran", "stopped"] and records[-1]["trigger"] == "target_reached"
     assert records[1]["metric"] <= 0.05 and records[1]["feasible"]
     # The runs cap precedes the target in Eq. stop.
-    _, records = run_loop(toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "b", max_runs=2)
+    _, records = run_loop(
+        toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "b", max_runs=2, stop_at_target=True
+    )
     assert records[-1]["trigger"] == "max_runs"
+    # Without the paper's rule (the default) the target is no stop: the budget is used whole.
+    _, records = run_loop(toy, ScriptedProposer(list(script)), tmp_path / "d", max_iters=3)
+    assert statuses(records) == ["ran", "ran", "ran", "stopped"] and records[-1]["trigger"] == "max_iters"
 
 
 def test_consecutive_failures_and_their_reset(toy, tmp_path):
@@ -109,7 +115,10 @@ def test_precedence_and_closest_trigger(toy, tmp_path):
     everything = Budgets(max_seconds=1, max_runs=2, max_iters=2, max_cost_usd=0.0)
     assert first_trigger(state, everything, elapsed_s=5).name == "wall_clock"
     assert first_trigger(state, everything, elapsed_s=0).name == "max_runs"
-    assert first_trigger(state, Budgets(max_iters=2), elapsed_s=0).name == "target_reached"
+    assert (
+        first_trigger(state, Budgets(max_iters=2, stop_at_target=True), elapsed_s=0).name == "target_reached"
+    )
+    assert first_trigger(state, Budgets(max_iters=2), elapsed_s=0).name == "max_iters"
     state.family.registry["target"] = None
     assert first_trigger(state, Budgets(max_iters=2), elapsed_s=0).name == "max_iters"
     assert first_trigger(state, Budgets(max_iters=3), elapsed_s=0) is None

@@ -95,8 +95,14 @@ class AuditedCampaign:
 
     @property
     def timeout(self) -> float:
-        """The campaign's per-experiment budget: every audit run gets the same."""
-        return float(self.meta.settings["timeout_per_run"])
+        """The campaign's hard limit of one run: every audit run gets the same."""
+        return self.meta.run_timeout
+
+    @property
+    def time_budget(self) -> float | None:
+        """The training seconds the campaign granted each run: every audit run is granted the same, so a
+        reseed repeats the experiment the search scored (a budget-cut run included)."""
+        return self.meta.time_budget
 
     @property
     def ran(self) -> list[Record]:

@@ -50,8 +50,9 @@ def measure_noise(
     """Run the baseline at ``k`` fresh seeds; write and return the family's ``seed_noise``."""
     if k < 2:
         raise AuditError(f"--seeds {k}: seed noise needs K >= 2 seeds (one run has no spread to measure)")
+    budget = None  # a campaign's time budget: its baseline is measured as the campaign ran it
     if campaign is not None:
-        root, timeout = campaign.step_dir(STEP), campaign.timeout
+        root, timeout, budget = campaign.step_dir(STEP), campaign.timeout, campaign.time_budget
         used = used_seeds(family.default_seed, None, [campaign.root], skip_step=STEP)
     else:
         root, used = (out_dir or default_noise_dir(family)), {family.default_seed}
@@ -62,7 +63,7 @@ def measure_noise(
         )
     baseline = family.baseline_config
     trials = [Trial(f"noise-s{seed}", baseline, seed) for seed in seeds]
-    rows = run_trials(family, trials, executor, root / "noise.jsonl", root, timeout)
+    rows = run_trials(family, trials, executor, root / "noise.jsonl", root, timeout, time_budget=budget)
     ok = [r for r in rows if r.ok]
     failed = [{"seed": r.seed, "reason": r.reason} for r in rows if not r.ok]
     if len(ok) < 2:
@@ -80,6 +81,7 @@ def measure_noise(
         "runs_dir": portable_path(root),
         "failed": failed,
         "pinned": pins(family),
+        **({"time_budget": budget} if budget is not None else {}),
         **sealed,
     }
     ledger.update(family.path, lambda registry, old: (old.measured(noise), None))

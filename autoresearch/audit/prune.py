@@ -133,7 +133,15 @@ def leave_one_out(
             if paired and seed not in full_at:
                 full_at[seed] = len(trials)
                 trials.append(Trial(f"full-{cid}-s{seed}", config, seed))
-        rows = run_trials(family, trials, executor, root / "prune.jsonl", root, campaign.timeout)
+        rows = run_trials(
+            family,
+            trials,
+            executor,
+            root / "prune.jsonl",
+            root,
+            campaign.timeout,
+            time_budget=campaign.time_budget,
+        )
         reverted = [row for row in rows if row.key.startswith("loo-")]
         return reverted, {seed: rows[i] for seed, i in full_at.items()}
 
@@ -260,7 +268,15 @@ def prune(
     pruned_config = {**full["config"], **{name: family.baseline_config[name] for name in dropped}}
     cid, root = config_id(pruned_config), campaign.step_dir(STEP)
     trials = [Trial(f"prune-{cid}-s{seed}", pruned_config, seed) for seed in part["reverify_seeds"]]
-    rows = run_trials(family, trials, executor, root / "prune.jsonl", root, campaign.timeout)
+    rows = run_trials(
+        family,
+        trials,
+        executor,
+        root / "prune.jsonl",
+        root,
+        campaign.timeout,
+        time_budget=campaign.time_budget,
+    )
     pruned = {"config_id": cid, "config": pruned_config, **assess(rows, None, noise, sign, split)}
     publish, retained = False, None
     if "mu_r" in pruned:

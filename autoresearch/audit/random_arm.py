@@ -129,6 +129,15 @@ def run_random_arm(
         "budget_from": portable_path(campaign.root),
         "matched_range": ranges,
         "space": space,
+        # the campaign's time budget: each draw is granted what each of its runs was
+        **(
+            {
+                "time_budget": campaign.time_budget,
+                "eval_allowance": campaign.meta.settings.get("eval_allowance"),
+            }
+            if campaign.time_budget is not None
+            else {}
+        ),
     }
     if arm.exists():  # resuming: only the very same arm
         saved = arm.meta()
@@ -142,8 +151,14 @@ def run_random_arm(
         arm.root.mkdir(parents=True, exist_ok=True)
         CampaignMeta.new(family, PROPOSER, settings).write(arm.root)
     # A best-of-N: every draw runs, whatever the target, the plateau or a run of failures says.
-    budgets = Budgets(max_iters=count, max_failures=count + 1, plateau_window=count + 1, stop_at_target=False)
-    loop = LoopSettings(PROPOSER, budgets, timeout_per_run=campaign.timeout, workers=executor.workers)
+    budgets = Budgets(max_iters=count, max_failures=count + 1, plateau_window=count + 1)
+    loop = LoopSettings(
+        PROPOSER,
+        budgets,
+        timeout_per_run=campaign.timeout,
+        workers=executor.workers,
+        time_budget=campaign.time_budget,
+    )
     proposer = RandomProposer(registry, seed, space="random-range")
     view = PlainView(family.metric)
     Orchestrator(family, proposer, arm.root, loop, view=view, executor=executor).run()
@@ -169,7 +184,16 @@ def judge_on_test(
         for side, best in sides.items()
     ]
     root = campaign.step_dir(step_name(matched_range))
-    rows = run_trials(family, trials, executor, root / "judge.jsonl", root, campaign.timeout, label="judge")
+    rows = run_trials(
+        family,
+        trials,
+        executor,
+        root / "judge.jsonl",
+        root,
+        campaign.timeout,
+        label="judge",
+        time_budget=campaign.time_budget,
+    )
     judged: dict[str, Any] = {}
     for (side, best), row in zip(sides.items(), rows, strict=True):
         test, search = row.on(Split.TEST), row.on(Split.SEARCH)

@@ -88,6 +88,7 @@ def run_trials(
     runs_log: Path | None = None,
     label: str | None = None,
     split: Split | None = None,
+    time_budget: float | None = None,
 ) -> list[TrialRow]:
     """Rows for ``trials`` in order, running only those not already logged as ok (for that config
     and that split).
@@ -95,7 +96,7 @@ def run_trials(
     Run directories go under ``root``; train.py appends its FINAL_METRIC lines to ``runs_log``
     (default root/runs.jsonl). Progress, named ``label`` (default: the log's stem), goes to stderr.
     Runs are scored on ``split``, by default both splits where the family has a sealed one
-    (:func:`audit_split`).
+    (:func:`audit_split`), each granted ``time_budget`` training seconds when given.
     """
     keys = [t.key for t in trials]
     if len(set(keys)) != len(keys):
@@ -115,7 +116,15 @@ def run_trials(
 
     def spec(trial: Trial) -> RunSpec:
         return RunSpec(
-            family, trial.config, trial.key, trial.seed, root / trial.key, runs_log, timeout, split
+            family,
+            trial.config,
+            trial.key,
+            trial.seed,
+            root / trial.key,
+            runs_log,
+            timeout,
+            split,
+            time_budget,
         )
 
     with TrialProgress(label or log_path.stem, len(trials), len(trials) - len(todo)) as progress:

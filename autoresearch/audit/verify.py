@@ -279,7 +279,15 @@ def verify(
         Trial(f"verify-{c['config_id']}-s{s}", c["config"], s) for c in candidates for s in part["seeds"]
     ]
     root = campaign.step_dir(STEP)
-    rows = run_trials(family, trials, executor, root / "verify.jsonl", root, campaign.timeout)
+    rows = run_trials(
+        family,
+        trials,
+        executor,
+        root / "verify.jsonl",
+        root,
+        campaign.timeout,
+        time_budget=campaign.time_budget,
+    )
     for i, candidate in enumerate(candidates):
         own = rows[i * n_seeds : (i + 1) * n_seeds]
         candidate.update(assess(own, candidate["source"]["best_train_loss"], noise, sign, split))

@@ -14,6 +14,10 @@ from autoresearch.campaign.records import now
 from autoresearch.family import Family
 from autoresearch.journal import JournalError, read_json, write_json_atomic
 
+# Seconds a time-budgeted run gets beyond its budget before it is killed: the interpreter and the
+# family's imports, loading its data, scoring the policy and saving it (loop --eval-allowance).
+EVAL_ALLOWANCE = 60.0
+
 
 def session(family: Family | None = None) -> dict[str, Any]:
     """One entry of campaign.json's ``sessions``: when a command started on the campaign, how (its
@@ -77,6 +81,11 @@ class CampaignMeta:
             sessions=(*self.sessions, session(family)),
         )
 
+    def noted(self, key: str, value: Any) -> CampaignMeta:
+        """This campaign with ``key: value`` in its current (last) session's entry."""
+        *before, current = self.sessions
+        return replace(self, sessions=(*before, {**current, key: value}))
+
     def check_family(self, family: Family) -> None:
         """Refuse a family other than the one this campaign ran: another name, or a family.json whose
         problem or search space differs from the recorded one (CampaignError naming both)."""
@@ -116,6 +125,20 @@ class CampaignMeta:
         family = Family.load(path)
         self.check_family(family)
         return family.under_protocol(self.settings.get("protocol"))
+
+    @property
+    def time_budget(self) -> float | None:
+        """The training seconds each of the campaign's runs is granted (``loop --time-budget``), or None."""
+        return self.settings.get("time_budget")
+
+    @property
+    def run_timeout(self) -> float:
+        """The hard wall-clock limit of one of the campaign's runs: its time budget plus the evaluation
+        allowance when it grants one (for a family that ignores the budget), else ``timeout_per_run``."""
+        settings = self.settings
+        if self.time_budget is not None:
+            return float(self.time_budget) + float(settings.get("eval_allowance", EVAL_ALLOWANCE))
+        return float(settings["timeout_per_run"])
 
     @property
     def provenance(self) -> dict[str, Any] | None:

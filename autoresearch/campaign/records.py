@@ -97,6 +97,9 @@ class Record:
     returncode: int | None = None
     interrupted_run_ids: list[str] | None = None
     progress: list[dict[str, Any]] | None = None
+    # A run that used up its training time budget and was scored as it stood (FINAL_METRIC's
+    # ``budget_exhausted``): a result like any other, told to the proposer as cut short.
+    budget_exhausted: bool | None = None
     schema: int = SCHEMA
 
     @property

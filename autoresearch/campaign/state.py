@@ -145,6 +145,10 @@ class CampaignState:
             "config": config,
             metric_name: record.metric,
         }
+        if record.wall_seconds is not None:  # what the run cost: the proposer weighs it against the gain
+            item["seconds"] = round(record.wall_seconds, 1)
+        if record.budget_exhausted:
+            item["budget_exhausted"] = True  # cut at its time budget and scored as it stood
         if record.progress:
             item["progress"] = record.progress
         if not record.ran:  # failed, or stopped early: neither counts as a result nor as a failure

@@ -133,7 +133,9 @@ class Campaign:
         """Intents of runs that started but whose iteration was never recorded."""
         return [intent for intent in self.intents() if intent.run_id not in state.run_ids]
 
-    def run_spec(self, family: Family, intent: Intent, timeout: float) -> RunSpec:
+    def run_spec(
+        self, family: Family, intent: Intent, timeout: float, time_budget: float | None = None
+    ) -> RunSpec:
         """The run of ``intent``, in its run directory, logging to the campaign's runs.jsonl."""
         paths = self.paths
         return RunSpec(
@@ -144,6 +146,7 @@ class Campaign:
             paths.run_dir(intent.run_id),
             paths.runs_log,
             timeout,
+            time_budget=time_budget,
         )
 
     def mark_interrupted(self, run_id: str, why: str) -> None:
@@ -203,6 +206,7 @@ class CampaignWriter:
                 direction=family.direction,
                 sigma=family.sigma,
             )
+            cut = result.final_metric.get("budget_exhausted")
             fields.update(
                 status=Status.RAN,
                 metric=result.metric,
@@ -210,6 +214,7 @@ class CampaignWriter:
                 final_metric=result.final_metric,
                 verdict=verdict,
                 best_so_far=state.best_after(result.metric, feasible),
+                budget_exhausted=cut if isinstance(cut, bool) else None,
             )
         elif result.status == "early_stopped":  # never a result: no metric, never best, not a failure
             fields.update(status=Status.EARLY_STOPPED, reason=result.reason, best_so_far=state.best_metric)

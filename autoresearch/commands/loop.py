@@ -14,6 +14,7 @@ from typing import Any
 from autoresearch.campaign import CampaignMeta, session
 from autoresearch.campaign.group import GroupMeta, is_group, plan_group
 from autoresearch.campaign.lock import LOCK_FILE, CampaignLock
+from autoresearch.campaign.meta import EVAL_ALLOWANCE
 from autoresearch.commands import SUMMARIES
 from autoresearch.commands.common import add_executor_arguments, make_executor
 from autoresearch.execution.executors import Executor
@@ -93,7 +94,37 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--timeout-per-run", type=_positive(float), help="wall-clock limit of one run, s (default 3600)"
     )
+    p.add_argument(
+        "--time-budget",
+        type=_positive(float),
+        metavar="SECONDS",
+        help="training seconds each run is granted (AUTORESEARCH_TIME_BUDGET): a family that honours it "
+        "stops training there and is scored as it stands; a run's hard limit is then the budget plus "
+        "--eval-allowance; kept in campaign.json",
+    )
+    p.add_argument(
+        "--eval-allowance",
+        type=_positive(float),
+        metavar="SECONDS",
+        help=f"with --time-budget: seconds a run gets beyond its budget to start, load, score and save "
+        f"(default {EVAL_ALLOWANCE:g})",
+    )
+    p.add_argument(
+        "--stop-at-target",
+        action="store_true",
+        default=None,
+        help="the paper's rule: end the campaign when its best reaches the family's target (default: the "
+        "target is a report line and the budget is used whole); kept in campaign.json",
+    )
     p.add_argument("--random-arm", help="a random-search campaign dir whose summary the proposer is shown")
+    p.add_argument(
+        "--warm-start",
+        nargs="+",
+        metavar="CAMPAIGN",
+        help="earlier campaigns (or --repeats groups) of the same family: their finished runs are told to "
+        "the tpe and gp samplers before the first turn (Optuna's add_trials; a run outside the space "
+        "searched now is dropped and counted) and summarised for an LLM proposer; kept in campaign.json",
+    )
     p.add_argument(
         "--enqueue",
         type=_queue_file,
@@ -129,8 +160,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--early-stop",
         choices=EARLY_STOP,
-        help="stop runs whose PROGRESS curve is worse than the finished runs' (Optuna's MedianPruner or "
-        "SuccessiveHalvingPruner); default none",
+        help="stop runs whose PROGRESS curve is worse than the finished runs' (Optuna's MedianPruner, "
+        "SuccessiveHalvingPruner or HyperbandPruner: with --proposer tpe, the BOHB-style arm); default none",
     )
     p.add_argument(
         "--optuna-journal",
@@ -155,7 +186,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def _given(args: argparse.Namespace) -> dict[str, Any]:
     """The settings the flags give (None: not given, as saved)."""
-    return {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
+    given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
+    if "time_budget" in given and "timeout_per_run" in given:
+        raise UsageError(
+            "--timeout-per-run does not apply with --time-budget: a budgeted run's limit is its budget "
+            "plus --eval-allowance"
+        )
+    if "eval_allowance" in given and not (given.get("time_budget") or args.resume):
+        raise UsageError("--eval-allowance applies with --time-budget only")
+    return given
 
 
 def _campaign_dir(args: argparse.Namespace, family: Family, proposer: str) -> Path:

@@ -44,6 +44,8 @@ from autoresearch.space import ValidationError
 from autoresearch.splits import Split
 
 STDERR_TAIL = 600
+# The family contract's variable: the training seconds a run is granted (docs/family-contract.md).
+TIME_BUDGET_ENV = "AUTORESEARCH_TIME_BUDGET"
 
 
 def family_env(family_dir: Path) -> dict[str, str]:
@@ -84,6 +86,16 @@ def write_train_copy(family: Family, config: dict[str, Any], run_dir: Path) -> P
         raise FileExistsError(f"{target} already exists: a run directory is used once")
     target.write_text(editable.patch(family.train_source, changes), encoding="utf-8")
     return target
+
+
+def run_env(spec: RunSpec) -> dict[str, str]:
+    """The environment of the run of ``spec``: the family's, and its time budget when it has one (never
+    one inherited from the caller's environment: a run without a budget trains as written)."""
+    env = family_env(spec.family.path)
+    env.pop(TIME_BUDGET_ENV, None)
+    if spec.time_budget is not None:
+        env[TIME_BUDGET_ENV] = repr(float(spec.time_budget))
+    return env
 
 
 def run_locally(spec: RunSpec, hooks: RunHooks = NO_HOOKS, die_with_supervisor: bool = False) -> RunResult:
@@ -128,7 +140,7 @@ def run_locally(spec: RunSpec, hooks: RunHooks = NO_HOOKS, die_with_supervisor: 
             returncode, timed_out = run_in_group(
                 cmd,
                 cwd=run_dir,
-                env={**family_env(family.path), tracking.RUN_ENV: str(tracked)},
+                env={**run_env(spec), tracking.RUN_ENV: str(tracked)},
                 stdout=out,
                 stderr=err,
                 timeout=spec.timeout,

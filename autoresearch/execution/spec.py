@@ -17,7 +17,9 @@ from autoresearch.splits import Split
 class RunSpec:
     """Train ``config`` of ``family`` at ``seed`` in ``run_dir`` (used once), appending its FINAL_METRIC
     line to ``runs_log``, within ``timeout`` seconds, scored on ``split`` (the sealed test split: the
-    audit only, and then on the search split too)."""
+    audit only, and then on the search split too). ``time_budget`` is the training seconds the run is
+    granted (``AUTORESEARCH_TIME_BUDGET``): a family that honours it stops training there and is
+    scored as it stands; ``timeout`` still kills one that does not."""
 
     family: Family
     config: dict[str, Any]
@@ -27,6 +29,7 @@ class RunSpec:
     runs_log: Path
     timeout: float
     split: Split = Split.SEARCH
+    time_budget: float | None = None
 
 
 @dataclass(frozen=True)

@@ -57,6 +57,20 @@ def summarize_random_arm(campaign_dir: Path, family: Family) -> str:
     return "\n".join(lines)
 
 
+def training_budget_line(state: CampaignState, time_budget: float | None) -> tuple[str, ...]:
+    """The turn's line on the training budget (``loop --time-budget``): how long a run may train and
+    which runs used it all up, scored as they stood (their training was cut short); () without one."""
+    if time_budget is None:
+        return ()
+    cut = [r.iteration for r in state.records if r.ran and r.budget_exhausted]
+    ran = sum(r.ran for r in state.records)
+    text = (
+        f"Training budget: each run trains for at most {time_budget:g} s and is then scored as it stands; "
+        f"{len(cut)} of {ran} finished runs used it up"
+    )
+    return (text + (f" (iterations {', '.join(map(str, cut))})" if cut else "") + ".",)
+
+
 def build_context(
     state: CampaignState,
     *,
@@ -64,6 +78,7 @@ def build_context(
     blind: bool,
     extra_warnings: tuple[str, ...] = (),
     random_arm_summary: str | None = None,
+    warm_start_summary: str | None = None,
 ) -> ProposerContext:
     family = state.family
     history = state.history_blind if blind else state.history_full
@@ -73,6 +88,7 @@ def build_context(
         program=family.program_blind if blind else family.program,
         registry=shown_registry(registry, blind),
         random_arm_summary=random_arm_summary,
+        warm_start_summary=warm_start_summary,
         history=tuple(copy.deepcopy(history)),
         current_values=state.current_values(),
         blind=blind,

@@ -47,11 +47,12 @@ from autoresearch.family import Family
 from autoresearch.journal import repair_torn_tail
 from autoresearch.loop import recovery
 from autoresearch.loop.asking import Halt, ask
-from autoresearch.loop.context import build_context, summarize_random_arm
-from autoresearch.loop.early_stop import EarlyStopper
+from autoresearch.loop.context import build_context, summarize_random_arm, training_budget_line
+from autoresearch.loop.early_stop import EarlyStopper, curve_of
 from autoresearch.loop.live import View
 from autoresearch.loop.scheduler import Scheduler
 from autoresearch.loop.stopping import Budgets, closest_trigger, first_trigger, stop_gate
+from autoresearch.loop.warm_start import WarmStart
 from autoresearch.proposers.base import Proposal, Proposer, RunOutcome
 from autoresearch.space import ValidationError, canonical_key
 
@@ -63,10 +64,12 @@ class LoopSettings:
     proposer_name: str
     budgets: Budgets = field(default_factory=Budgets)
     blind: bool = False
-    timeout_per_run: float = 3600.0
+    timeout_per_run: float = 3600.0  # the hard limit of one run (with a time budget: budget + allowance)
     random_arm: Path | None = None
     workers: int = 1  # experiments in flight at once
-    early_stop: str = "none"  # none, median or asha (autoresearch.loop.early_stop)
+    early_stop: str = "none"  # none, median, asha or hyperband (autoresearch.loop.early_stop)
+    time_budget: float | None = None  # training seconds each run is granted (AUTORESEARCH_TIME_BUDGET)
+    warm_start: WarmStart | None = None  # earlier campaigns' runs; an LLM proposer is shown their summary
 
 
 @dataclass(frozen=True)
@@ -123,6 +126,7 @@ class Orchestrator:
         self.registry: dict[str, Any] = {}  # the campaign's copy of family.json
         self.stopper: EarlyStopper | None = None
         self.random_summary: str | None = None
+        self.warm_summary: str | None = None
         self._elapsed_base, self._started = 0.0, time.monotonic()
 
     # ----- set-up and resume -------------------------------------------------------------
@@ -154,6 +158,8 @@ class Orchestrator:
         self._elapsed_base, self._started = self.state.elapsed_s, time.monotonic()
         arm = self.settings.random_arm
         self.random_summary = summarize_random_arm(arm, self.family) if arm else None
+        warm = self.settings.warm_start
+        self.warm_summary = warm.summary(self.family) if warm else None
 
     def elapsed(self) -> float:
         """Seconds the loop has been running, summed over this campaign's sessions."""
@@ -271,8 +277,12 @@ class Orchestrator:
             state,
             registry=self.registry,
             blind=blind,
-            extra_warnings=(f"Budget: {closest_trigger(state, budgets, self.elapsed(), blind)}",),
+            extra_warnings=(
+                f"Budget: {closest_trigger(state, budgets, self.elapsed(), blind)}",
+                *training_budget_line(state, self.settings.time_budget),
+            ),
             random_arm_summary=self.random_summary,
+            warm_start_summary=self.warm_summary,
         )
         context = replace(context, iteration=iteration, running=self._running())
         seconds_left = None if budgets.max_seconds is None else budgets.max_seconds - self.elapsed()
@@ -316,7 +326,7 @@ class Orchestrator:
 
         if proposal.kind == "stop":
             annotation = proposal.annotation if isinstance(proposal.annotation, dict) else {}
-            accepted, why = stop_gate(annotation, state)
+            accepted, why = stop_gate(annotation, state, self.settings.budgets.stop_at_target)
             if accepted:
                 self._drain()  # the stop record is the last: the runs in flight are recorded first
                 refuse(Status.STOP_ACCEPTED, why, trigger="stop_research")
@@ -378,9 +388,9 @@ class Orchestrator:
             on_report=self.stopper.start(run_id) if self.stopper else None,
             cancel=self.scheduler.cancel,  # set as the loop unwinds: every run in flight is killed
         )
-        return self.executor.run(
-            self.campaign.run_spec(self.family, intent, self.settings.timeout_per_run), hooks
-        )
+        settings = self.settings
+        spec = self.campaign.run_spec(self.family, intent, settings.timeout_per_run, settings.time_budget)
+        return self.executor.run(spec, hooks)
 
     def _drain(self) -> None:
         for done in self.scheduler.drain():
@@ -405,8 +415,12 @@ class Orchestrator:
             self.on_record(record)
 
     def _run_outcome(self, record: Record) -> RunOutcome:
-        """What the proposer is told of a run record (a failed or stopped run has no metric)."""
+        """What the proposer is told of a run record (a failed or stopped run has no metric), with what
+        it cost and whether its training budget cut it short."""
+        cost = {"seconds": record.wall_seconds, "budget_exhausted": bool(record.budget_exhausted)}
+        if record.status is Status.EARLY_STOPPED:
+            return RunOutcome(record.config, None, False, curve=curve_of(record), **cost)
         if not record.ran:
-            return RunOutcome(record.config, None, False)
+            return RunOutcome(record.config, None, False, **cost)
         constraints = self.family.constraints(record.final_metric)
-        return RunOutcome(record.config, record.metric, bool(record.feasible), constraints)
+        return RunOutcome(record.config, record.metric, bool(record.feasible), constraints, **cost)

@@ -18,6 +18,7 @@ from typing import Any
 from autoresearch import provenance
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, portable_path
 from autoresearch.campaign.lock import CampaignLock
+from autoresearch.campaign.meta import EVAL_ALLOWANCE
 from autoresearch.execution.executors import Executor, LocalExecutor
 from autoresearch.exits import error_exit
 from autoresearch.extras import require
@@ -27,10 +28,12 @@ from autoresearch.loop.context import shown_registry
 from autoresearch.loop.live import make_view
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
-from autoresearch.proposers import KEY_FREE, make_proposer
+from autoresearch.loop.warm_start import WarmStart
+from autoresearch.proposers import DEFAULT_SPACE, KEY_FREE, make_proposer
 from autoresearch.proposers.base import Proposer
 from autoresearch.proposers.enqueued import EnqueuedProposer, full_queue
 from autoresearch.proposers.llm_options import LLM_DEFAULTS, llm_kwargs
+from autoresearch.verdicts import reaches_target
 
 # Settings a campaign keeps in campaign.json; on --resume, flags given again override them.
 DEFAULTS: dict[str, Any] = {
@@ -46,7 +49,11 @@ DEFAULTS: dict[str, Any] = {
     "plateau_kappa": 1.0,
     "seed": 0,
     "timeout_per_run": 3600.0,
+    "time_budget": None,  # training seconds each run is granted (AUTORESEARCH_TIME_BUDGET); None: none
+    "eval_allowance": EVAL_ALLOWANCE,  # a budgeted run's hard limit is its budget plus this
+    "stop_at_target": False,  # the paper's rule: reaching the family's target ends the campaign
     "random_arm": None,
+    "warm_start": None,  # earlier campaigns of the family whose finished runs the proposer starts from
     "enqueue": None,
     "space": None,  # key-free proposers: None searches DEFAULT_SPACE[proposer]
     "protocol": None,  # one of the family's declared protocols (Family.under_protocol); None: its whole space
@@ -86,10 +93,14 @@ def _check_key(proposer: str, settings: dict[str, Any]) -> None:
 
 def settings_of(given: dict[str, Any], saved: dict[str, Any]) -> dict[str, Any]:
     """A campaign's settings: the defaults, then what campaign.json saved, then the flags ``given``."""
-    settings = {**DEFAULTS, **saved, **given}
+    # A campaign saved before the target became a report line stopped at it: it resumes as it ran.
+    legacy = {"stop_at_target": True} if saved and "stop_at_target" not in saved else {}
+    settings = {**DEFAULTS, **legacy, **saved, **given}
     for path in ("random_arm", "optuna_journal"):
         if settings[path] is not None:
             settings[path] = portable_path(settings[path])
+    if settings["warm_start"] is not None:
+        settings["warm_start"] = [portable_path(p) for p in settings["warm_start"]]
     return settings
 
 
@@ -122,6 +133,7 @@ def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
     settings = meta.settings
     _check_key(meta.proposer, settings)
     family = resolve_family(meta.family).under_protocol(settings["protocol"])
+    warm = _warm_start(meta.proposer, settings, family)
     proposer = make_proposer(
         meta.proposer,
         shown_registry(family.search_registry(), settings["blind"]),
@@ -129,6 +141,7 @@ def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
         model=settings["model"],
         base_url=settings["base_url"],
         space=settings["space"],
+        prior=warm.outcomes if warm and meta.proposer in KEY_FREE else (),
         **llm_kwargs(meta.proposer, settings),
     )
     if settings["enqueue"]:
@@ -148,14 +161,29 @@ def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
             max_cost_usd=settings["max_cost_usd"],
             plateau_window=settings["plateau_window"],
             plateau_kappa=settings["plateau_kappa"],
+            stop_at_target=settings["stop_at_target"],
         ),
         blind=settings["blind"],
-        timeout_per_run=settings["timeout_per_run"],
+        timeout_per_run=meta.run_timeout,
         random_arm=Path(settings["random_arm"]) if settings["random_arm"] else None,
         workers=settings["workers"],
         early_stop=settings["early_stop"],
+        time_budget=meta.time_budget,
+        warm_start=warm,
     )
     return family, proposer, loop
+
+
+def _warm_start(proposer: str, settings: dict[str, Any], family: Family) -> WarmStart | None:
+    """The earlier runs of ``--warm-start``, matched against the space the proposer searches."""
+    if not settings["warm_start"]:
+        return None
+    if proposer == "random":
+        raise UsageError("--warm-start: the random proposer draws independently of every earlier run")
+    space = family.space
+    if proposer in KEY_FREE:
+        space = space.searched(settings["space"] or DEFAULT_SPACE[proposer])
+    return WarmStart.load(settings["warm_start"], family, space)
 
 
 def executor_of(settings: dict[str, Any]) -> Executor:
@@ -195,6 +223,8 @@ def run(
         family, proposer, loop = build_loop(meta)
         family.check_outside(root)
         lock = CampaignLock(root, "loop", create=True).acquire()  # one process per campaign
+        if loop.warm_start is not None:  # what this session started from: the campaigns may grow
+            meta = meta.noted("warm_start", loop.warm_start.to_json())
         meta.write(root)
         executor = make_executor(meta.settings)
         feed = _feed(meta.settings, family, root)
@@ -227,10 +257,30 @@ def run(
     print(
         f"  iterations: {outcome.iterations}, successful runs: {outcome.n_runs_ok}, best {family.metric}: {best_text}"
     )
+    if family.target is not None:
+        print(f"  target {family.target:g}: {_target_report(Campaign(root).state(family))}")
     if outcome.status == "prepare_failed":
         print(f"  fix the family, then: {resume_hint}")
         return 1
     return 0
+
+
+def _target_report(state) -> str:
+    """Whether, and when, the campaign's best reached the family's target: a report line, not a stop
+    (unless ``--stop-at-target``)."""
+    first = next(
+        (
+            r
+            for r in state.records
+            if r.ran
+            and r.best_so_far is not None
+            and reaches_target(r.best_so_far, state.family.target, state.family.direction)
+        ),
+        None,
+    )
+    if first is None:
+        return "not reached"
+    return f"first reached at iteration {first.iteration} ({first.run_id})"
 
 
 def resume(root: str | Path) -> int:

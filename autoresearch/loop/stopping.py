@@ -31,7 +31,10 @@ class Budgets:
     max_cost_usd: float | None = None
     plateau_window: int = 6
     plateau_kappa: float = 1.0
-    stop_at_target: bool = True  # False: a best-of-N (the audit's random arm) runs on past the target
+    # The paper's rule (loop --stop-at-target): reaching the family's target ends the campaign. Off (the
+    # default), the target is a report line and the budget is used whole: a target met once, on one
+    # seed of the search split, is no reason to stop searching (docs/autoresearch-loop.md).
+    stop_at_target: bool = False
 
 
 @dataclass(frozen=True)
@@ -118,25 +121,30 @@ def closest_trigger(state: CampaignState, budgets: Budgets, elapsed_s: float, bl
     return text
 
 
-def stop_gate(annotation: dict[str, Any], state: CampaignState) -> tuple[bool, str]:
+def stop_gate(
+    annotation: dict[str, Any], state: CampaignState, stop_at_target: bool = True
+) -> tuple[bool, str]:
     """(accepted, reason) for the proposer's stop request.
 
-    Accepted when the target is met, or after at least six completed experiments (the baseline
-    excluded) over at least four distinct axes (axes of parameters that differ from the
-    baseline in a completed run, measured from the runs, not from the proposer's claims). A
-    status claiming success without the target met is always rejected.
+    Accepted when the target is met (under the paper's rule, ``stop_at_target``), or after at least
+    six completed experiments (the baseline excluded) over at least four distinct axes (axes of
+    parameters that differ from the baseline in a completed run, measured from the runs, not from
+    the proposer's claims). A status claiming success without the target met is always rejected.
     """
     status = str(annotation.get("status", "")).strip().lower().replace("-", "_").replace(" ", "_")
-    if state.target_met:
+    if state.target_met and stop_at_target:
         return True, f"target met: best {state.best_metric:g} vs target {state.family.target:g}"
-    if status in POSITIVE_STATUSES:
+    if status in POSITIVE_STATUSES and not state.target_met:
         # No target value in the reason: it is fed back to the proposer, which may be blind.
         claim = "no target is declared" if state.family.target is None else "the target is not met"
         return False, f"status {annotation.get('status')!r} claims success but {claim}"
     n, axes = state.n_experiments, sorted(state.axes_exercised)
     if n >= GATE_MIN_EXPERIMENTS and len(axes) >= GATE_MIN_AXES:
         return True, f"{n} completed experiments over {len(axes)} axes ({', '.join(axes)})"
+    needs = f"at least {GATE_MIN_EXPERIMENTS} experiments over at least {GATE_MIN_AXES} axes"
+    if not stop_at_target:  # the target is a report line: reaching it ends nothing
+        return False, f"only {n} experiment(s) completed over {len(axes)} axis/axes; a stop needs {needs}"
     return False, (
         f"the target is not met and only {n} experiment(s) completed over {len(axes)} axis/axes; a stop needs "
-        f"the target met, or at least {GATE_MIN_EXPERIMENTS} experiments over at least {GATE_MIN_AXES} axes"
+        f"the target met, or {needs}"
     )

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from autoresearch.extras import require
-from autoresearch.proposers.base import Proposer
+from autoresearch.proposers.base import Proposer, RunOutcome
 
 PROPOSERS = ("anthropic", "gp", "openai", "random", "tpe")
 KEY_FREE = ("gp", "random", "tpe")
@@ -23,14 +24,18 @@ def make_proposer(
     base_url: str | None = None,
     prices: Any = None,
     space: str | None = None,
+    prior: Sequence[RunOutcome] = (),
     **llm_options: Any,
 ) -> Proposer:
     """The proposer called ``name``; ``registry`` is family.json as shown to it.
 
     ``seed`` seeds the key-free proposers (an LLM's sampling cannot be seeded reliably);
     ``space`` is what a key-free proposer searches (default :data:`DEFAULT_SPACE`);
+    ``prior`` are earlier campaigns' runs a TPE or GP sampler starts from (``loop --warm-start``);
     ``llm_options`` go to the LLM proposer's constructor (max_tokens, effort, profile, ...).
     """
+    if prior and name not in ("tpe", "gp"):
+        raise ValueError(f"earlier runs (--warm-start) are told to the tpe and gp samplers, not to {name!r}")
     if name in KEY_FREE and (model or base_url or llm_options):
         raise ValueError(f"--model, --base-url and the LLM flags apply to LLM proposers, not to {name!r}")
     if name not in KEY_FREE and space is not None:
@@ -46,12 +51,12 @@ def make_proposer(
     if name == "tpe":
         from autoresearch.proposers.tpe import TPEProposer
 
-        return TPEProposer(registry, seed=seed, space=space)
+        return TPEProposer(registry, seed=seed, space=space, prior=prior)
     if name == "gp":
         require("torch", "gp", "--proposer gp (Optuna's GPSampler)")
         from autoresearch.proposers.gp import GPProposer
 
-        return GPProposer(registry, seed=seed, space=space)
+        return GPProposer(registry, seed=seed, space=space, prior=prior)
     if name == "anthropic":
         if base_url:
             raise ValueError("--base-url applies to the openai proposer only")

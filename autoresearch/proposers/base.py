@@ -71,6 +71,7 @@ class ProposerContext:
     program: program.md, or program_blind.md in blind mode.
     registry: family.json as shown to the proposer (blind mode: no target, baseline or best).
     random_arm_summary: a compact text summary of a random-search arm, when one exists.
+    warm_start_summary: the earlier campaigns of ``loop --warm-start``, summarised, when given.
     history: the campaign's runs as dicts (blind mode: only {"config", <metric>} pairs).
     current_values: the editable values the next overrides apply to (the best configuration).
     running: experiments started but not finished yet (``loop --workers K``), as dicts with
@@ -87,6 +88,7 @@ class ProposerContext:
     current_values: dict[str, Any]
     blind: bool = False
     running: tuple[dict[str, Any], ...] = ()
+    warm_start_summary: str | None = None
 
     @classmethod
     def of_configs(
@@ -131,6 +133,10 @@ class RunOutcome(NamedTuple):
     metric: float | None  # None when the run failed or was stopped early
     feasible: bool
     constraints: dict[str, float] | None = None  # graded, <= 0 met (Family.constraints); None: none
+    # A run stopped early (loop --early-stop): its learning curve {step: value}, as far as it got.
+    curve: dict[int, float] | None = None
+    seconds: float | None = None  # what the run cost: its wall-clock seconds
+    budget_exhausted: bool = False  # it used up its training time budget and was scored as it stood
 
 
 class Proposer(ABC):

@@ -20,6 +20,7 @@ from typing import Any
 import optuna
 from optuna.trial import FrozenTrial
 
+from autoresearch.proposers.base import RunOutcome
 from autoresearch.proposers.tpe import TPEProposer, _derived_seed
 
 N_STARTUP_TRIALS = 5  # random draws before the GP is fitted (the baseline counts as one)
@@ -34,8 +35,9 @@ class GPProposer(TPEProposer):
         seed: int = 0,
         n_startup_trials: int = N_STARTUP_TRIALS,
         space: str = "bounds",
+        prior: Sequence[RunOutcome] = (),
     ):
-        super().__init__(registry, seed=seed, n_startup_trials=n_startup_trials, space=space)
+        super().__init__(registry, seed=seed, n_startup_trials=n_startup_trials, space=space, prior=prior)
 
     def _ask(
         self, trials: list[FrozenTrial], attempt: int, running: Sequence[FrozenTrial] = ()

@@ -5,12 +5,13 @@ The user message comes in three parts, most stable first, so that a provider's p
 but the newest part of every request:
 
 1. **stable** (fixed for the whole campaign): the program (program.md, or program_blind.md in blind
-   mode), the family.json registry without its moving ``best`` entry, the random-search arm's summary.
+   mode), the family.json registry without its moving ``best`` entry, the random-search arm's summary,
+   the earlier campaigns' summary (``loop --warm-start``).
 2. **history**, append-only blocks: one block per run, one JSON line each, oldest first. To stay
    bounded, runs older than the newest :data:`DETAIL_RUNS` are folded, :data:`CHUNK` at a time, into
-   compact table blocks (iteration, status, metric, feasibility, verdict and the configuration as a
-   delta from the first run), so a block's text never changes once written and a long campaign costs
-   about 150 characters per old run. Every string is cut to :data:`MAX_STRING_CHARS`.
+   compact table blocks (iteration, status, metric, feasibility, verdict, the run's cost in seconds,
+   whether its time budget cut it, and the configuration as a delta from the first run), so a block's
+   text never changes once written and a long campaign costs about 150 characters per old run. Every string is cut to :data:`MAX_STRING_CHARS`.
 3. **tail** (changes every turn): runs in flight, orchestrator warnings (the budget line among them),
    the best run so far in full, and the current editable values.
 
@@ -32,6 +33,7 @@ from autoresearch.proposers.tools import PROPOSE, STOP, safe_text
 PROGRAM = "## Program"
 REGISTRY = "## Registry (family.json)"
 RANDOM_ARM = "## Random-search arm"
+WARM_START = "## Earlier campaigns (warm start)"
 HISTORY = "## Runs so far"
 RUNNING = "## Runs in flight"
 WARNINGS = "## Orchestrator warnings"
@@ -42,15 +44,16 @@ DETAIL_RUNS = 20  # the newest runs are shown in full
 CHUNK = 10  # older runs are folded into compact blocks this many at a time
 MAX_STRING_CHARS = 300  # per string in a history line (hypothesis, reason, ...)
 MAX_PROGRESS_POINTS = 8  # of an early-stopped run's learning curve
-COMPACT_KEYS = ("iteration", "status", "feasible", "verdict")
+COMPACT_KEYS = ("iteration", "status", "feasible", "verdict", "seconds", "budget_exhausted")
 
 SYSTEM_PROMPT = f"""\
 You are a research agent tuning the hyperparameters of a training script, one experiment at a time.
 Each turn you see, in order: the research program, the family registry (metric, direction, axes and
-search space), a summary of a random-search baseline when one exists, every run so far (older runs
-in a compact table, configurations as changes from the first run), the runs still in flight, warnings
-from the orchestrator about your previous turn, the best run so far, and the current values of the
-editable parameters.
+search space), a summary of a random-search baseline and of earlier campaigns when there are any, every
+run so far (older runs in a compact table, configurations as changes from the first run; `seconds` is
+what a run cost, and `budget_exhausted` marks a run cut at its training time budget and scored as it
+stood), the runs still in flight, warnings from the orchestrator about your previous turn, the best run
+so far, and the current values of the editable parameters.
 
 Every turn you must call exactly one tool, and write nothing else:
 - {PROPOSE}: change one or more parameters of the current configuration. Use only names from the
@@ -179,6 +182,8 @@ def render_prompt(context: ProposerContext) -> Prompt:
     ]
     if context.random_arm_summary:
         stable.append(f"{RANDOM_ARM}\n{context.random_arm_summary.strip()}")
+    if context.warm_start_summary:
+        stable.append(f"{WARM_START}\n{context.warm_start_summary.strip()}")
     stable.append(
         f"{HISTORY}\nOne JSON object per line, oldest first; configurations as changes from the first "
         f"run; the oldest runs in compact form."

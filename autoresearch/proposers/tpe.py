@@ -53,7 +53,12 @@ class TPEProposer(Proposer):
     name = "tpe"
 
     def __init__(
-        self, registry: dict[str, Any], seed: int = 0, n_startup_trials: int = 10, space: str = "bounds"
+        self,
+        registry: dict[str, Any],
+        seed: int = 0,
+        n_startup_trials: int = 10,
+        space: str = "bounds",
+        prior: Sequence[RunOutcome] = (),
     ):
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         self.family_space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
@@ -63,6 +68,8 @@ class TPEProposer(Proposer):
         self.n_startup_trials = n_startup_trials
         self.distributions = distributions(self.space)
         self.outcomes: list[RunOutcome] = []
+        for outcome in prior:  # a warm start: earlier campaigns' runs, told before this campaign's
+            self.tell(outcome)
 
     def tell(self, outcome: RunOutcome) -> None:
         self.outcomes.append(outcome._replace(config=self.family_space.validate_full(outcome.config)))
@@ -90,10 +97,26 @@ class TPEProposer(Proposer):
         for outcome in self.outcomes:
             if not self.space.contains(outcome.config):
                 continue
+            # What the run cost, and whether its time budget cut it: seen by anyone reading the study.
+            attrs = {"seconds": outcome.seconds, "budget_exhausted": outcome.budget_exhausted}
+            if outcome.curve:  # stopped early: Optuna's TPE ranks a pruned trial by how far it got
+                trials.append(
+                    optuna.trial.create_trial(
+                        state=TrialState.PRUNED,
+                        params=outcome.config,
+                        distributions=self.distributions,
+                        intermediate_values=outcome.curve,
+                        user_attrs=attrs,
+                    )
+                )
+                continue
             if outcome.metric is None and crash_cost is None:
                 trials.append(
                     optuna.trial.create_trial(
-                        state=TrialState.FAIL, params=outcome.config, distributions=self.distributions
+                        state=TrialState.FAIL,
+                        params=outcome.config,
+                        distributions=self.distributions,
+                        user_attrs=attrs,
                     )
                 )
                 continue
@@ -107,6 +130,7 @@ class TPEProposer(Proposer):
                     params=outcome.config,
                     distributions=self.distributions,
                     constraints=constraints,
+                    user_attrs=attrs,
                 )
             )
         return trials

@@ -1,0 +1,200 @@
+"""loop --time-budget: each run is handed its training budget, a run that used it up is scored as it
+stands (a flag on its record, told to the proposer), the hard limit is the budget plus the evaluation
+allowance, and the audit grants its runs the same budget. And the target as a report line."""
+
+import json
+
+import pytest
+from loop_helpers import TOY_OPTIMUM, ScriptedProposer, copy_toy, run_loop
+
+from autoresearch.audit.inputs import open_campaign
+from autoresearch.audit.noise import measure_noise
+from autoresearch.campaign import Campaign, CampaignMeta
+from autoresearch.cli import main
+from autoresearch.execution.executors import LocalExecutor
+from autoresearch.family import Family
+from autoresearch.journal import read_json, read_jsonl
+from autoresearch.loop.session import settings_of
+from autoresearch.loop.stopping import stop_gate
+from autoresearch.proposers.base import RunOutcome
+from autoresearch.proposers.tpe import TPEProposer
+
+# The toy "trains" one 0.05 s step per epoch and honours AUTORESEARCH_TIME_BUDGET as the families do:
+# it stops at the first step past the budget and reports what it reached, with budget_exhausted.
+BUDGETED = """
+def train(config, seed):
+    budget = os.environ.get("AUTORESEARCH_TIME_BUDGET")
+    started, steps, cut = time.monotonic(), 0, False
+    for _ in range(config["EPOCHS"]):
+        time.sleep(0.05)
+        steps += 1
+        if budget is not None and time.monotonic() - started >= float(budget):
+            cut = True
+            break
+    result = toy_train({**config, "EPOCHS": max(steps, 1)}, seed)
+    result["seen_budget"] = budget
+    if budget is not None:
+        result.update(time_budget=float(budget), budget_exhausted=cut)
+    return result
+"""
+
+
+def budgeted_family(tmp_path, name="budgeted"):
+    toy = copy_toy(tmp_path, name)
+    train = toy / "train.py"
+    source = train.read_text().replace(
+        "def train(config: dict, seed: int) -> dict:", "def toy_train(config, seed):"
+    )
+    anchor = "def main() -> int:"
+    train.write_text(source.replace(anchor, BUDGETED + "\n\n" + anchor, 1))
+    return toy
+
+
+LONG = {"EPOCHS": 60}  # 3 s of training: cut by a 1 s budget
+SHORT = {"EPOCHS": 2}  # 0.1 s
+
+
+def test_a_run_that_used_up_its_budget_is_scored_flagged_and_told(tmp_path):
+    toy = budgeted_family(tmp_path)
+    proposer = ScriptedProposer([LONG, SHORT, {"EPOCHS": 3}])
+    settings = {"max_iters": 4, "plateau_window": 100}
+    _, records = run_loop(toy, proposer, tmp_path / "c", timeout=30, time_budget=1.0, **settings)
+    baseline, long, short = records[:3]
+    assert long["status"] == "ran" and long["metric"] is not None and long["budget_exhausted"] is True
+    assert long["final_metric"]["seen_budget"] == "1.0" and long["wall_seconds"] < 2.8
+    assert short["status"] == "ran" and short["budget_exhausted"] is False
+    assert baseline["budget_exhausted"] is False  # 10 steps: 0.5 s
+    # The next turn says which runs were cut; the history shows each run's cost and the flag.
+    context = proposer.contexts[-1]
+    line = next(w for w in context.warnings if w.startswith("Training budget"))
+    assert "at most 1 s" in line and f"iterations {long['iteration']}" in line
+    shown = {item["iteration"]: item for item in context.history}
+    assert shown[long["iteration"]]["budget_exhausted"] is True and shown[long["iteration"]]["seconds"] > 0
+    assert "budget_exhausted" not in shown[short["iteration"]]
+    # The key-free samplers get it as a trial user attribute, beside the run's cost.
+    tpe = TPEProposer(Family.load(toy).search_registry())
+    for record in Campaign(tmp_path / "c").records():
+        if record.ran:
+            tpe.tell(
+                RunOutcome(
+                    record.config,
+                    record.metric,
+                    True,
+                    None,
+                    None,
+                    record.wall_seconds,
+                    record.budget_exhausted,
+                )
+            )
+    attrs = [t.user_attrs for t in tpe.trials]
+    assert [a["budget_exhausted"] for a in attrs] == [
+        r["budget_exhausted"] for r in records if r["status"] == "ran"
+    ]
+    assert all(a["seconds"] > 0 for a in attrs)
+
+
+def test_without_a_budget_a_run_trains_as_written_whatever_the_environment(tmp_path, monkeypatch):
+    monkeypatch.setenv("AUTORESEARCH_TIME_BUDGET", "0.01")  # not the loop's: never handed on
+    toy = budgeted_family(tmp_path)
+    _, records = run_loop(toy, ScriptedProposer([LONG]), tmp_path / "c", max_iters=2)
+    assert records[1]["final_metric"]["seen_budget"] is None and records[1]["budget_exhausted"] is None
+    assert "time_budget" not in records[1]["final_metric"]
+
+
+def test_the_cli_keeps_the_budget_and_kills_a_family_that_ignores_it(tmp_path, capsys, monkeypatch):
+    toy = copy_toy(tmp_path)  # ignores the variable; TOY_SLEEP_S makes every run 5 s
+    campaign = tmp_path / "c"
+    args = ["loop", "--family", toy, "--proposer", "random", "--max-iters", "1", "--campaign", campaign]
+    args += ["--time-budget", "0.5", "--eval-allowance", "1", "--plain"]
+    monkeypatch.setenv("TOY_SLEEP_S", "5")
+    assert main([*map(str, args)]) == 0
+    monkeypatch.delenv("TOY_SLEEP_S")
+    meta = read_json(campaign / "campaign.json")
+    assert meta["settings"]["time_budget"] == 0.5 and meta["settings"]["eval_allowance"] == 1
+    assert CampaignMeta.read(campaign).run_timeout == 1.5
+    (baseline,) = [r for r in read_jsonl(campaign / "proposals.jsonl") if r["run_id"]]
+    assert baseline["run_status"] == "timeout" and 1.4 < baseline["wall_seconds"] < 4
+    assert "1.5 s wall-clock limit" in baseline["reason"]
+    # A budgeted run's limit is the budget plus the allowance: --timeout-per-run beside it is refused.
+    capsys.readouterr()
+    refused = ["loop", "--family", toy, "--proposer", "random", "--campaign", tmp_path / "d"]
+    assert main([*map(str, refused), "--time-budget", "5", "--timeout-per-run", "60"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--timeout-per-run does not apply with --time-budget" in err
+    assert main([*map(str, refused), "--eval-allowance", "5"]) == 2
+    assert "--eval-allowance applies with --time-budget only" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+
+def test_the_audit_grants_its_runs_the_campaigns_budget(tmp_path):
+    toy = budgeted_family(tmp_path)
+    campaign = tmp_path / "c"
+    campaign.mkdir()
+    family = Family.load(toy)
+    CampaignMeta.new(family, "scripted", {"timeout_per_run": 3600.0, "time_budget": 0.25}).write(campaign)
+    run_loop(toy, ScriptedProposer([]), campaign, max_iters=1, time_budget=0.25)
+    noise = measure_noise(family, LocalExecutor(2), k=2, campaign=open_campaign(campaign))
+    assert noise["time_budget"] == 0.25 and noise["k"] == 2
+    lines = read_jsonl(campaign / "audit" / "noise" / "runs.jsonl")
+    assert [line["time_budget"] for line in lines] == [0.25, 0.25]
+    assert open_campaign(campaign).timeout == 0.25 + 60.0  # the documented evaluation allowance
+
+
+def test_the_target_is_a_report_line_unless_the_papers_rule_is_asked_for(tmp_path, capsys):
+    toy = copy_toy(tmp_path)
+    queue = tmp_path / "queue.json"
+    queue.write_text(json.dumps(TOY_OPTIMUM))
+    args = [
+        "loop",
+        "--family",
+        toy,
+        "--proposer",
+        "random",
+        "--max-iters",
+        "4",
+        "--enqueue",
+        queue,
+        "--plain",
+    ]
+    assert main([*map(str, args), "--campaign", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    records = read_jsonl(tmp_path / "a" / "proposals.jsonl")
+    assert records[-1]["trigger"] == "max_iters" and len(records) == 5  # the target did not stop it
+    assert "target 0.05: first reached at iteration 2 (it0002)" in out
+    assert read_json(tmp_path / "a" / "campaign.json")["settings"]["stop_at_target"] is False
+    assert main([*map(str, args), "--campaign", str(tmp_path / "b"), "--stop-at-target"]) == 0
+    records = read_jsonl(tmp_path / "b" / "proposals.jsonl")
+    assert records[-1]["trigger"] == "target_reached" and len(records) == 3
+    # A campaign saved before the choice existed stopped at the target: it resumes under that rule.
+    assert settings_of({}, {"max_iters": 4})["stop_at_target"] is True
+    assert settings_of({}, {})["stop_at_target"] is False
+
+
+def test_the_stop_gate_accepts_a_met_target_only_under_the_papers_rule(tmp_path):
+    toy = copy_toy(tmp_path)
+    run_loop(toy, ScriptedProposer([TOY_OPTIMUM]), tmp_path / "c", max_iters=2)
+    state = Campaign(tmp_path / "c").state(Family.load(toy))
+    assert state.target_met
+    claim = {"status": "target_met"}
+    assert stop_gate(claim, state, stop_at_target=True)[0] is True
+    accepted, why = stop_gate(claim, state, stop_at_target=False)
+    assert not accepted and "a stop needs at least 6 experiments" in why
+
+
+@pytest.mark.parametrize("allowance", ["0", "-1"])
+def test_a_non_positive_allowance_is_refused(tmp_path, allowance, capsys):
+    toy = copy_toy(tmp_path)
+    args = [
+        "loop",
+        "--family",
+        toy,
+        "--proposer",
+        "random",
+        "--time-budget",
+        "5",
+        "--eval-allowance",
+        allowance,
+    ]
+    with pytest.raises(SystemExit) as exit_:
+        main([*map(str, args), "--campaign", str(tmp_path / "c")])
+    assert exit_.value.code == 2 and "expected a positive float" in capsys.readouterr().err
