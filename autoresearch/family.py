@@ -86,6 +86,13 @@ class Family:
         return self.registry.get("constraints_field")
 
     @property
+    def tail_fields(self) -> dict[str, str] | None:
+        """family.json's ``tails``: the fields of a split's metrics that describe its worst starts,
+        ``runaway_field`` (the share beyond the family's runaway bound) and ``worst_field``; None
+        when undeclared (autoresearch.audit.tails)."""
+        return self.registry.get("tails")
+
+    @property
     def has_test_split(self) -> bool:
         """Whether train.py scores on a sealed test split with ``--eval-split test``."""
         return self.registry.get("test_split") is True
@@ -272,6 +279,15 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
         bad("constraints_field", "must be a field name or null")
     if constraints is not None and field is None:
         bad("constraints_field", "needs a feasibility_field: the constraints grade that gate")
+    tails = registry.get("tails")
+    if tails is not None and not (
+        isinstance(tails, dict)
+        and isinstance(tails.get("runaway_field"), str)
+        and tails["runaway_field"]
+        and set(tails) <= {"runaway_field", "worst_field"}
+        and all(isinstance(v, str) and v for v in tails.values())
+    ):
+        bad("tails", "must be null or an object with a 'runaway_field' (and optionally a 'worst_field') name")
     seed = registry.get("default_seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool):
         bad("default_seed", "must be an integer")

@@ -38,6 +38,9 @@ PACKAGES = (
 )
 FAMILY_FILES = ("train.py", "family.json", "program.md", "program_blind.md", "prepare.py")
 AUDIT_WRITES = ("seed_noise", "best")  # family.json fields the audit writes (or wrote): left out of its hash
+# family.json fields only the audit reads, to judge runs (autoresearch.audit.tails): they change no run,
+# so they are left out of the hash too, and declaring them leaves every campaign of the family resumable
+AUDIT_READS = ("tails",)
 GIT_TIMEOUT_S = 10.0
 
 
@@ -73,7 +76,7 @@ def family_hashes(family_dir: Path) -> dict[str, str | None]:
             except ValueError:
                 registry = None
             if isinstance(registry, dict):
-                kept = {k: v for k, v in registry.items() if k not in AUDIT_WRITES}
+                kept = {k: v for k, v in registry.items() if k not in AUDIT_WRITES + AUDIT_READS}
                 data = json.dumps(kept, sort_keys=True).encode()
         hashes[name] = hashlib.sha256(data).hexdigest()[:16]
     return hashes

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from autoresearch import ledger
-from autoresearch.audit import stats
+from autoresearch.audit import stats, tails
 from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
@@ -277,7 +277,10 @@ def prune(
         campaign.timeout,
         time_budget=campaign.time_budget,
     )
-    pruned = {"config_id": cid, "config": pruned_config, **assess(rows, None, noise, sign, split)}
+    # The gate verification used (an audit.json written before it had one: the paper's).
+    gate = verified.get("gate", tails.PAPER)
+    assessed = assess(rows, None, noise, sign, split, family.tail_fields, gate)
+    pruned = {"config_id": cid, "config": pruned_config, **assessed}
     publish, retained = False, None
     if "mu_r" in pruned:
         publish, retained = stats.prune_publish(

@@ -23,6 +23,7 @@ from autoresearch.audit.figures import (
 )
 from autoresearch.audit.inputs import AuditedCampaign, open_campaign
 from autoresearch.audit.prune import DECIDED_BY, RULES
+from autoresearch.audit.tails import OUTLIER_UNITS, PAPER, RUNAWAY
 from autoresearch.campaign import portable_path
 from autoresearch.campaign.audit_log import read_audit
 from autoresearch.family import Family
@@ -218,6 +219,7 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
             f"| {c['config_id']}{mark} | {_changes(c['config'], family)} | {_fmt(c['source']['metric'])} "
             f"| {cells} | {c['margin']:.2f} | {c['n_feasible']} of {c['n']} | {excluded} | {c['reason']} |"
         )
+    lines += tails_lines(verify)
     promoted = _promoted(verify)
     single = verify.get("single_seed_best")
     lines.append("")
@@ -251,6 +253,42 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
             )
     else:
         lines.append("No candidate passed the gate: nothing was promoted and the family best is unchanged.")
+    return lines
+
+
+def tails_lines(verify: dict[str, Any]) -> list[str]:
+    """What each candidate's reseeded mean hides (autoresearch.audit.tails): the spread over its seeds,
+    a seed far outside the rest, its worst start and the reseeds with a runaway start. Nothing for an
+    audit made before they were kept."""
+    shown = [c for c in verify["candidates"] if (c.get("tails") or {}).get("spread")]
+    if not shown:
+        return []
+    gate = verify.get("gate", PAPER)
+    rule = (
+        "the runaway gate: a reseed with a start beyond the family's runaway bound fails the candidate"
+        if gate == RUNAWAY
+        else "the paper's gate: runaways reported, not gated"
+    )
+    lines = [
+        "",
+        f"Per-seed spread and worst starts on the {verify.get('split', 'search')} split ({rule}; a seed is far "
+        f"outside the rest beyond {OUTLIER_UNITS:g} robust sd of the others):",
+        "",
+        "| Config | min / median / max | Worst start (seed) | Reseeds with a runaway start | Far outside the rest |",
+        "|---|---|---|---|---|",
+    ]
+    for c in shown:
+        t = c["tails"]
+        spread = " / ".join(_fmt(t["spread"][k]) for k in ("min", "median", "max"))
+        worst = t.get("worst")
+        worst_text = f"{_fmt(worst['value'])} (s{worst['seed']})" if worst else "—"
+        runaways = t.get("runaways")
+        if runaways is None:
+            runaway_text = "— (no runaway field declared)"
+        else:
+            runaway_text = ", ".join(f"s{r['seed']}: {r['runaway_share']:.3g}" for r in runaways) or "none"
+        far = ", ".join(f"s{o['seed']}: {_fmt(o['metric'])}" for o in t["outliers"]) or "none"
+        lines.append(f"| {c['config_id']} | {spread} | {worst_text} | {runaway_text} | {far} |")
     return lines
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch import ledger
-from autoresearch.audit import stats
+from autoresearch.audit import stats, tails
 from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, gate_split, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
@@ -80,10 +80,14 @@ def assess(
     noise: dict[str, Any],
     sign: int,
     split: Split = Split.SEARCH,
+    tail_fields: dict[str, str] | None = None,
+    gate_name: str = tails.PAPER,
 ) -> dict[str, Any]:
     """Parity guard, then Eq. reseedgate and the Welch CI of the mean difference over the valid
     reseeds, on ``split`` (``noise`` is the seed noise measured on it). A reseed that failed to run
-    fails the gate (re-running the step retries it)."""
+    fails the gate (re-running the step retries it). Every reseed reports its worst starts when the
+    family declares ``tail_fields``; under the runaway gate (``gate_name``) a candidate with a reseed
+    that has a start beyond the family's runaway bound fails too (autoresearch.audit.tails)."""
     reseeds, valid = [], []
     for row in rows:
         excluded = None
@@ -108,6 +112,8 @@ def assess(
         if split is not Split.SEARCH:
             search = row.on(Split.SEARCH)
             reseeds[-1]["search_metric"] = search and search.metric
+        if tail_fields:
+            reseeds[-1].update(tails.run_tail(row.final_metric, split, tail_fields))
     splits = [Split.SEARCH, Split.TEST] if any(row.on(Split.TEST) for row in valid) else [Split.SEARCH]
     by_split = {}
     for name in splits:
@@ -124,6 +130,7 @@ def assess(
         "n_parity_excluded": len(rows) - n_failed - len(values),
         "n_feasible": sum(feasible),
         "by_split": by_split,
+        "tails": tails.summarize(reseeds, declared=bool(tail_fields)),
     }
     if not values:
         return {**out, "passed": False, "reason": "no valid reseeds"}
@@ -131,6 +138,9 @@ def assess(
     reasons = [] if gate.passed else [gate.reason]
     if n_failed:
         reasons.append(f"{n_failed} reseed(s) failed to run")
+    runaway = tails.runaway_reason(out["tails"])
+    if runaway and gate_name == tails.RUNAWAY:
+        reasons.append(runaway)
     out.update(
         mu_r=gate.mu_r,
         sigma_r=gate.sigma_r,
@@ -237,9 +247,13 @@ def verify(
     top: int = 3,
     n_seeds: int = 10,
     split: str | None = None,
+    gate: str = tails.RUNAWAY,
 ) -> dict[str, Any]:
     """Reseed the top candidates, gate them on ``split`` (default: the sealed test split where the
-    family has one), promote the most reproducible passing one."""
+    family has one) with ``gate`` (the runaway gate, or the paper's alone), promote the most
+    reproducible passing one."""
+    if gate not in tails.GATES:
+        raise ValueError(f"--gate must be one of {', '.join(tails.GATES)} (got {gate!r})")
     if top < 1:
         raise ValueError(f"--top must be >= 1 (got {top})")
     if n_seeds < 2:
@@ -251,6 +265,7 @@ def verify(
     best_run = campaign.single_seed_best()
     part: dict[str, Any] = {
         "split": split.value,
+        "gate": gate,
         "sealed_split": family.has_test_split,
         "noise": {k: noise[k] for k in ("mean", "std", "k")},
         "top": top,
@@ -290,7 +305,8 @@ def verify(
     )
     for i, candidate in enumerate(candidates):
         own = rows[i * n_seeds : (i + 1) * n_seeds]
-        candidate.update(assess(own, candidate["source"]["best_train_loss"], noise, sign, split))
+        source_loss = candidate["source"]["best_train_loss"]
+        candidate.update(assess(own, source_loss, noise, sign, split, family.tail_fields, gate))
     passing = [c for c in candidates if c["passed"]]
     if passing:
         promoted = max(passing, key=lambda c: (c["bound"], sign * c["mu_r"]))

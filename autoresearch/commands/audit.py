@@ -22,7 +22,7 @@ from autoresearch.commands.common import (
 )
 from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
-from autoresearch.commands.verify import print_verify
+from autoresearch.commands.verify import add_gate_argument, print_verify
 from autoresearch.splits import Split
 
 
@@ -53,6 +53,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
         "test split where the family has one, else search; search is the paper's protocol)",
     )
+    add_gate_argument(p)
     add_rule_arguments(p)
     add_audit_arguments(p)
     return p
@@ -83,9 +84,10 @@ def run(args: argparse.Namespace) -> int:
                 )
             noise = measure_noise(family, executor, k=args.noise_seeds, campaign=campaign)
             print(f"[noise] measured: {describe_noise(noise)}")
-        print(f"[verify, gated on the {split} split]")
+        print(f"[verify, gated on the {split} split, {args.gate} gate]")
+        campaign = open_campaign(args.campaign)
         print_verify(
-            verify(open_campaign(args.campaign), executor, top=args.top, n_seeds=args.seeds, split=split)
+            verify(campaign, executor, top=args.top, n_seeds=args.seeds, split=split, gate=args.gate)
         )
         print(f"[prune, {rule_of(args).name} rule]")
         print_prune(prune(open_campaign(args.campaign), executor, rule=rule_of(args)))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from autoresearch.audit import tails
 from autoresearch.audit.verify import verify
 from autoresearch.campaign.lock import CampaignLock
 from autoresearch.commands import SUMMARIES
@@ -29,8 +30,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
         "test split where the family has one, else search; search is the paper's protocol)",
     )
+    add_gate_argument(p)
     add_audit_arguments(p)
     return p
+
+
+def add_gate_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--gate",
+        choices=tails.GATES,
+        default=tails.RUNAWAY,
+        help="runaway (default): the paper's gate, and no reseed with a start beyond the family's runaway "
+        "bound (family.json tails.runaway_field); paper: the paper's gate alone (m >= 2 and feasible on "
+        "every reseed). Every reseed's worst starts are reported either way",
+    )
 
 
 def print_verify(part: dict) -> None:
@@ -46,6 +59,11 @@ def print_verify(part: dict) -> None:
             )
         else:
             print(f"  {c['config_id']}: {c['reason']}")
+        for far in (c.get("tails") or {}).get("outliers", ()):
+            print(
+                f"    seed {far['seed']} lies far outside the rest: {far['metric']:.6g} against a median of "
+                f"{far['median_of_others']:.6g}"
+            )
     print(f"  promoted: {part['promoted'] or 'none'} ({part['reason']})")
 
 
@@ -53,7 +71,9 @@ def run(args: argparse.Namespace) -> int:
     def body(executor) -> None:
         with CampaignLock(args.campaign, "verify"):
             campaign = opened(args.campaign, args)
-            part = verify(campaign, executor, top=args.top, n_seeds=args.seeds, split=args.gate_split)
+            part = verify(
+                campaign, executor, top=args.top, n_seeds=args.seeds, split=args.gate_split, gate=args.gate
+            )
             print_verify(part)
 
     return run_command("verify", args, body)
