@@ -94,18 +94,21 @@ def repair_torn_tail(path: str | os.PathLike[str]) -> bool:
             return False
         with open(path, "rb+") as f:
             f.seek(start)
-            fragment = f.read()
-            torn = Path(f"{path}.torn")
-            fd = os.open(torn, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-            try:
-                os.write(fd, fragment + b"\n")
-                os.fsync(fd)
-            finally:
-                os.close(fd)
+            keep_torn(path, f.read())
             f.truncate(start)
             f.flush()
             os.fsync(f.fileno())
     return True
+
+
+def keep_torn(path: str | os.PathLike[str], fragment: bytes) -> None:
+    """Append ``fragment``, a line that lost its newline, to ``<path>.torn``, durably."""
+    fd = os.open(f"{os.fspath(path)}.torn", os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, fragment + b"\n")
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def encode_line(record: Any) -> bytes:

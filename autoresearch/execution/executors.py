@@ -33,6 +33,10 @@ R = TypeVar("R")
 OnResult = Callable[[int, Any], None]
 
 
+class ExecutorError(RuntimeError):
+    """An executor cannot run what it was given (a family Ray cannot ship); the message says why."""
+
+
 class Executor(ABC):
     """Runs training runs (:meth:`run`), and ``fn`` over tasks, ``workers`` at a time on threads of
     this process (:meth:`map`, serial with one worker); ``on_result(index, result)`` fires in the

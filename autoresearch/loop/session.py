@@ -19,7 +19,7 @@ from autoresearch import provenance
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, portable_path
 from autoresearch.campaign.lock import CampaignLock
 from autoresearch.campaign.meta import EVAL_ALLOWANCE
-from autoresearch.execution.executors import Executor, LocalExecutor
+from autoresearch.execution.executors import Executor, ExecutorError, LocalExecutor
 from autoresearch.exits import error_exit
 from autoresearch.extras import require
 from autoresearch.family import Family, FamilyError, resolve_family
@@ -240,7 +240,7 @@ def run(
     except KeyboardInterrupt:
         print(f"\ninterrupted; campaign: {root}\nresume with: {resume_hint}", file=sys.stderr)
         return 130
-    except (CampaignError, JournalError, OSError) as err:  # OSError: e.g. the disk is full
+    except (CampaignError, JournalError, ExecutorError, OSError) as err:  # OSError: e.g. the disk is full
         return error_exit("loop", err, resume_hint)
     finally:
         signal.signal(signal.SIGTERM, previous)
