@@ -23,8 +23,8 @@ from autoresearch.audit.progress import TrialProgress
 from autoresearch.campaign.audit_log import StepLog, TrialRow
 from autoresearch.execution.executors import Executor
 from autoresearch.execution.processes import stop_orphaned_run
-from autoresearch.execution.result import RunResult, load_result
-from autoresearch.execution.runner import logged_run
+from autoresearch.execution.result import RunResult
+from autoresearch.execution.runner import logged_run, saved_run
 from autoresearch.execution.spec import RunSpec
 from autoresearch.family import Family
 from autoresearch.splits import Split
@@ -61,7 +61,7 @@ def run_trial(executor: Executor, spec: RunSpec, trial: Trial) -> TrialRow:
     configuration and split whose log line was lost is reused, anything else left in the directory
     is replaced."""
     family, run_dir = spec.family, spec.run_dir
-    earlier = load_result(run_dir)
+    earlier = saved_run(spec)
     if (
         earlier is not None
         and earlier.ok

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal
 
-from autoresearch.journal import read_json
-
 RunStatus = Literal["ok", "failed", "timeout", "early_stopped"]
+RUN_STATUSES = ("ok", "failed", "timeout", "early_stopped")
 RESULT_FILE = "result.json"
 _LEGACY_KEYS = {"record": "final_metric"}  # result.json written before the rename
 
@@ -36,10 +34,12 @@ class RunResult:
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> RunResult:
-        return cls(**{_LEGACY_KEYS.get(key, key): value for key, value in data.items()})
+        return cls(**renamed(data))
 
 
-def load_result(run_dir: Path) -> RunResult | None:
-    """The saved result of a run that finished, or None."""
-    path = run_dir / RESULT_FILE
-    return RunResult.from_json(read_json(path)) if path.exists() else None
+RESULT_FIELDS = tuple(field.name for field in fields(RunResult))
+
+
+def renamed(data: dict[str, Any]) -> dict[str, Any]:
+    """A saved result's fields under their current names."""
+    return {_LEGACY_KEYS.get(key, key): value for key, value in data.items()}

@@ -36,11 +36,11 @@ from autoresearch import editable
 from autoresearch.execution import tracking
 from autoresearch.execution.processes import run_in_group
 from autoresearch.execution.protocol import StdoutReader, check_final_metric, check_split, read_final_metric
-from autoresearch.execution.result import RESULT_FILE, RunResult
+from autoresearch.execution.result import RESULT_FIELDS, RESULT_FILE, RUN_STATUSES, RunResult, renamed
 from autoresearch.execution.spec import NO_HOOKS, RunHooks, RunSpec
 from autoresearch.family import Family
-from autoresearch.journal import read_jsonl, repair_torn_tail, write_json_atomic
-from autoresearch.space import ValidationError
+from autoresearch.journal import JournalError, read_json, read_jsonl, repair_torn_tail, write_json_atomic
+from autoresearch.space import ValidationError, is_finite_number
 from autoresearch.splits import Split
 
 STDERR_TAIL = 600
@@ -205,6 +205,58 @@ def logged_run(spec: RunSpec) -> RunResult | None:
             return RunResult("failed", run_id, None, reason, None, None)
         return RunResult("ok", run_id, line, None, None, None, value)
     return None
+
+
+def saved_run(spec: RunSpec) -> RunResult | None:
+    """The result the runner saved for the run of ``spec`` (run_dir/result.json), for a run whose
+    supervisor died after saving it; None without one. The file lies in the run's working directory,
+    where train.py could have written it too, so it is read as untrusted input: only a result of this
+    run in the runner's own shape, whose FINAL_METRIC object passes the checks a printed one must
+    pass, counts; anything else is a lost result (None), and the run is adopted from its runs log
+    line or run again, as when there is no file at all."""
+    try:
+        data = read_json(spec.run_dir / RESULT_FILE)
+    except FileNotFoundError:
+        return None
+    except (JournalError, OSError, UnicodeDecodeError):
+        return None
+    data = renamed(data) if isinstance(data, dict) else {}
+    if not set(data) <= set(RESULT_FIELDS) or data.get("run_id") != spec.run_id:
+        return None
+    status, final_metric = data.get("status"), data.get("final_metric")
+    reason, wall, returncode = data.get("reason"), data.get("wall_seconds"), data.get("returncode")
+    progress = data.get("progress")
+    if (
+        status not in RUN_STATUSES
+        or not (reason is None or isinstance(reason, str))
+        or not (wall is None or is_finite_number(wall))
+        or not (returncode is None or (isinstance(returncode, int) and not isinstance(returncode, bool)))
+        or not (progress is None or (isinstance(progress, list) and all(map(_is_point, progress))))
+    ):
+        return None
+    value = None
+    if status == "ok":
+        value, problem = check_final_metric(final_metric, spec.family.metric, spec.run_id)
+        if (
+            problem
+            or check_split(final_metric, spec.family.metric, spec.split)
+            or data.get("metric") != value
+        ):
+            return None
+    elif final_metric is not None or data.get("metric") is not None:
+        return None
+    return RunResult(status, spec.run_id, final_metric, reason, wall, returncode, value, progress)
+
+
+def _is_point(point: Any) -> bool:
+    """Whether ``point`` is a PROGRESS point as the runner keeps it: {"step": int, "value": finite}."""
+    return (
+        isinstance(point, dict)
+        and set(point) == {"step", "value"}
+        and isinstance(point["step"], int)
+        and is_finite_number(point["step"])
+        and is_finite_number(point["value"])
+    )
 
 
 def run_prepare_check(family_dir: Path, timeout: float = 300.0) -> str | None:

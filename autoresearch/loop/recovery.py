@@ -2,7 +2,8 @@
 
 Every intent without a record is finished: what is left of its run is killed (every process
 carrying its run directory, wherever it moved: autoresearch.execution.tracking), then its outcome is
-adopted from ``result.json`` (the runner's verdict) or from the run's line in runs.jsonl (train.py
+adopted from ``result.json`` (the runner's verdict, read as untrusted input since the run could
+write it: autoresearch.execution.runner.saved_run) or from the run's line in runs.jsonl (train.py
 finished, with the intent's config and seed), or it is recorded as timed out (still running past
 its deadline, or killed there by its watchdog); otherwise it is re-run under a new run id
 (``<run_id>-r2``, ...), listing the lost attempts in ``interrupted_run_ids``. No iteration and no
@@ -13,8 +14,8 @@ from __future__ import annotations
 
 from autoresearch.campaign import Campaign, CampaignState, Intent
 from autoresearch.execution.processes import stop_orphaned_run
-from autoresearch.execution.result import RunResult, load_result
-from autoresearch.execution.runner import logged_run
+from autoresearch.execution.result import RunResult
+from autoresearch.execution.runner import logged_run, saved_run
 from autoresearch.family import Family
 
 
@@ -23,7 +24,7 @@ def adopt(campaign: Campaign, family: Family, intent: Intent, timeout: float) ->
     (past its deadline at resume, or killed there by its watchdog); None otherwise."""
     spec = campaign.run_spec(family, intent, timeout)
     leftover = stop_orphaned_run(spec.run_dir)  # first: nothing of it may write beside a re-run
-    result = load_result(spec.run_dir)
+    result = saved_run(spec)
     if result is not None:
         return result
     logged = logged_run(spec)
