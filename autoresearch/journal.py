@@ -4,8 +4,9 @@ A record is appended as one whole line by a single ``os.write`` on an ``O_APPEND
 under a lock file shared with every other writer (``<file>.lock``, the same lock a family's
 train.py takes on ``--runs-log``), then fsync'ed. A crash can therefore leave at most a torn
 last line without its newline; :func:`repair_torn_tail` moves such a fragment to ``<file>.torn``
-before anything else is appended, so it is never glued to the next record. Readers skip an
-unterminated last line (it is either torn or still being written).
+before anything else is appended, so it is never glued to the next record: a writer repairs, a
+reader never does. Readers skip an unterminated last line (it is either torn or still being
+written), so reading a log changes nothing and needs no write access, not even for a lock file.
 
 Non-finite floats are written as Python's json writes them (``NaN``, ``Infinity``), which
 :func:`read_jsonl` reads back.
@@ -157,11 +158,15 @@ def read_jsonl(path: str | os.PathLike[str]) -> list[Any]:
 
 
 class Journal:
-    """An append-only JSONL file; opening it repairs a torn last line left by a crash."""
+    """An append-only JSONL file. Opening it changes nothing (a reader skips a torn last line); a
+    writer calls :meth:`repair` before its first append."""
 
     def __init__(self, path: str | os.PathLike[str]):
         self.path = Path(path)
-        self.repaired = repair_torn_tail(self.path)
+
+    def repair(self) -> bool:
+        """Move a torn last line left by a crash to ``<file>.torn``; True when one was found."""
+        return repair_torn_tail(self.path)
 
     def append(self, record: Any) -> None:
         append_jsonl(self.path, record)

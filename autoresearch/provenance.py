@@ -8,7 +8,10 @@ every :func:`differences` between the recorded environment and the current one;
 Versions are read from the installed distributions' metadata, never by importing them (this
 package does not import torch). The git state is that of the repository holding the family
 directory: its commit, and whether tracked files differ from it (recorded, not compared: the audit
-itself rewrites the family's best and its ledger). family.json is hashed without ``best``, which the
+itself rewrites the family's best and its ledger). ``git status`` runs programs the repository's
+own config names (``core.fsmonitor``, clean filters), so it is asked only by the commands that run
+the family's code anyway (loop, audit); a read-only command (``check``, ``report``) asks git for the
+commit alone (``rev-parse`` runs none of them) and records ``dirty`` as None. family.json is hashed without ``best``, which the
 audit writes, nor ``seed_noise`` (the audit wrote it there before the ledger), so that a hash names the
 problem and its search space in either layout; ledger.json is not hashed.
 """
@@ -48,15 +51,16 @@ class ProvenanceError(RuntimeError):
     """The environment differs from the recorded one and --strict-provenance was given."""
 
 
-def collect(family_dir: str | Path) -> dict[str, Any]:
-    """The provenance of work done now on the family in ``family_dir``."""
+def collect(family_dir: str | Path, read_only: bool = False) -> dict[str, Any]:
+    """The provenance of work done now on the family in ``family_dir``; ``read_only``: for a command
+    that runs nothing of the family's or its repository's (module docstring)."""
     family_dir = Path(family_dir)
     return {
         "python": platform.python_version(),
         "implementation": platform.python_implementation(),
         "platform": platform.platform(),
         "packages": {name: _version(name) for name in PACKAGES},
-        "git": git_state(family_dir),
+        "git": git_state(family_dir, status=not read_only),
         "family_files": family_hashes(family_dir),
     }
 
@@ -82,13 +86,16 @@ def family_hashes(family_dir: Path) -> dict[str, str | None]:
     return hashes
 
 
-def git_state(directory: Path) -> dict[str, Any] | None:
-    """{"commit", "dirty"} of the git repository holding ``directory``, or None outside one."""
+def git_state(directory: Path, status: bool = True) -> dict[str, Any] | None:
+    """{"commit", "dirty"} of the git repository holding ``directory``, or None outside one; without
+    ``status``, ``dirty`` is None (not asked)."""
     commit = _git(directory, "rev-parse", "HEAD")
     if commit is None:
         return None
-    status = _git(directory, "status", "--porcelain", "--untracked-files=no")
-    return {"commit": commit, "dirty": bool(status)}
+    if not status:
+        return {"commit": commit, "dirty": None}
+    changed = _git(directory, "status", "--porcelain", "--untracked-files=no")
+    return {"commit": commit, "dirty": bool(changed)}
 
 
 def differences(recorded: dict[str, Any] | None, current: dict[str, Any]) -> list[str]:

@@ -25,17 +25,20 @@ def test_torn_last_line_is_moved_aside_not_glued(tmp_path):
         f.write(b'{"i": 2, "half')  # a crash in the middle of a write
     assert read_jsonl(path) == [{"i": 1}]  # readers skip the unterminated line
     journal = Journal(path)
-    assert journal.repaired
+    assert journal.read() == [{"i": 1}] and path.read_bytes().endswith(b"half")  # opening writes nothing
+    assert journal.repair()  # what a writer does first
     journal.append({"i": 3})
     assert read_jsonl(path) == [{"i": 1}, {"i": 3}]
     assert (tmp_path / "log.jsonl.torn").read_bytes() == b'{"i": 2, "half\n'
-    assert not Journal(path).repaired  # a clean file is left alone
+    assert not Journal(path).repair()  # a clean file is left alone
 
 
 def test_torn_first_and_only_line(tmp_path):
     path = tmp_path / "log.jsonl"
     path.write_bytes(b'{"x"')
-    Journal(path).append({"ok": True})
+    journal = Journal(path)
+    journal.repair()
+    journal.append({"ok": True})
     assert read_jsonl(path) == [{"ok": True}]
 
 

@@ -10,6 +10,7 @@ from typing import Any
 from autoresearch import provenance
 from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, Record
 from autoresearch.campaign.audit_log import read_audit
+from autoresearch.campaign.check import trail_refusal
 from autoresearch.family import Family
 from autoresearch.ledger import LEDGER_FILE
 from autoresearch.space import canonical_key
@@ -114,17 +115,22 @@ class AuditedCampaign:
         return best_feasible(self.ran, self.family.direction)
 
 
-def open_campaign(campaign_dir: str | Path) -> AuditedCampaign:
+def open_campaign(campaign_dir: str | Path, read_only: bool = False) -> AuditedCampaign:
+    """The campaign in ``campaign_dir`` for an audit step, or read-only (``check``, ``report``): then
+    its provenance runs nothing of the family's repository (autoresearch.provenance)."""
     store = Campaign(Path(campaign_dir).resolve())
     if not store.exists() or not store.paths.proposals.exists():
         raise AuditError(f"{campaign_dir}: not a campaign directory (no campaign.json or proposals.jsonl)")
+    refusal = trail_refusal(campaign_dir)  # a repeated or missing record would count runs twice or not at all
+    if refusal:
+        raise AuditError(refusal)
     try:
         meta = store.meta()
         family = meta.open_family(store.root)
         records = store.records()
     except CampaignError as err:
         raise AuditError(str(err)) from None
-    return AuditedCampaign(store, meta, family, records, provenance.collect(family.path))
+    return AuditedCampaign(store, meta, family, records, provenance.collect(family.path, read_only))
 
 
 def provenance_report(campaign: AuditedCampaign, strict: bool) -> list[str]:

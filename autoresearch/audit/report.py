@@ -382,7 +382,7 @@ def pruning_sections(campaign: AuditedCampaign, audit: dict[str, Any]) -> list[s
 
 def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None = None) -> Path:
     """Write report.md, search.png, recipe.png (and trajectories.png) and return report.md's path."""
-    campaign = open_campaign(campaign_dir)
+    campaign = open_campaign(campaign_dir, read_only=True)
     family = campaign.family
     audit = read_audit(campaign.root)
     out_dir = Path(out_dir or campaign.root)

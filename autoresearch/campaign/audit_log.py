@@ -89,10 +89,12 @@ class TrialRow:
 
 
 class StepLog:
-    """An audit step's log of trials (append-only; a torn last line is repaired on opening)."""
+    """An audit step's log of trials, opened by the step that appends to it (append-only; a torn
+    last line is repaired on opening)."""
 
     def __init__(self, path: str | os.PathLike[str]):
         self._journal = Journal(path)
+        self._journal.repair()
 
     def read(self) -> list[TrialRow]:
         return [TrialRow.from_json(row) for row in self._journal.read()]

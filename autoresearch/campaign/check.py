@@ -337,3 +337,16 @@ def trail_problems(root: str | Path) -> list[Problem]:
     audit.json the audit steps and the report cannot read (:func:`audit_problems`)."""
     _, problems = _check_proposals(CampaignPaths(Path(root)))
     return [p for p in problems if p.breaks_trail] + audit_problems(root, shape_only=True)
+
+
+def trail_refusal(root: str | Path) -> str | None:
+    """Why a campaign is not read back (:func:`trail_problems`), in one line naming the first problem
+    and the repairs' command; None when nothing stands in the way."""
+    problems = trail_problems(root)
+    if not problems:
+        return None
+    more = f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else ""
+    return (
+        f"{root}: {problems[0].where}: {problems[0].what}{more}; see `autoresearch check --campaign {root}` "
+        "for the repairs"
+    )

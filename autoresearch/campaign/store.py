@@ -22,7 +22,14 @@ from autoresearch.campaign.state import CampaignState
 from autoresearch.execution.result import RunResult
 from autoresearch.execution.spec import RunSpec
 from autoresearch.family import Family
-from autoresearch.journal import Journal, JournalError, read_json, read_jsonl, write_json_atomic
+from autoresearch.journal import (
+    Journal,
+    JournalError,
+    read_json,
+    read_jsonl,
+    repair_torn_tail,
+    write_json_atomic,
+)
 from autoresearch.verdicts import run_verdict
 
 INTENT = "intent.json"
@@ -108,6 +115,12 @@ class Campaign:
     def append(self, record: Record) -> None:
         """Append one record, durably (autoresearch.journal)."""
         self._journal.append(record.to_json())
+
+    def repair(self) -> None:
+        """What a writer does before its first append: move a torn last line of proposals.jsonl and
+        runs.jsonl (a crash mid-append) to ``.torn`` beside them. Reading a campaign never does."""
+        self._journal.repair()
+        repair_torn_tail(self.paths.runs_log)
 
     # ----- run intents --------------------------------------------------------------------
 

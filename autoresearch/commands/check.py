@@ -47,7 +47,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def _provenance(root: Path) -> list[str]:
     """The provenance differences of a campaign whose files open (else the problems say why)."""
     try:
-        return provenance_report(open_campaign(root), strict=False)
+        return provenance_report(open_campaign(root, read_only=True), strict=False)
     except (AuditError, CampaignError, FamilyError, JournalError, OSError):
         return []
 

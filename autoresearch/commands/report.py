@@ -8,7 +8,7 @@ from pathlib import Path
 
 from autoresearch.audit.inputs import AuditError
 from autoresearch.audit.report import write_report
-from autoresearch.campaign.check import trail_problems
+from autoresearch.campaign.check import trail_refusal
 from autoresearch.campaign.lock import not_a_directory
 from autoresearch.commands import SUMMARIES
 from autoresearch.exits import error_exit
@@ -39,14 +39,7 @@ def _refusal(args: argparse.Namespace) -> str | None:
     for arm in args.arm:
         if not arm.is_dir():
             return f"--arm {arm}: not a campaign directory"
-    problems = trail_problems(campaign)  # duplicated or missing iterations would skew every figure
-    if problems:
-        return (
-            f"{campaign}: {problems[0].where}: {problems[0].what}"
-            + (f" (and {len(problems) - 1} more problem(s))" if len(problems) > 1 else "")
-            + f"; see `autoresearch check --campaign {campaign}` for the repairs"
-        )
-    return None
+    return trail_refusal(campaign)  # duplicated or missing iterations would skew every figure
 
 
 def run(args: argparse.Namespace) -> int:

@@ -44,7 +44,6 @@ from autoresearch.execution.result import RunResult
 from autoresearch.execution.runner import run_prepare_check
 from autoresearch.execution.spec import RunHooks
 from autoresearch.family import Family
-from autoresearch.journal import repair_torn_tail
 from autoresearch.loop import recovery
 from autoresearch.loop.asking import Halt, ask
 from autoresearch.loop.context import build_context, summarize_random_arm, training_budget_line
@@ -146,7 +145,7 @@ class Orchestrator:
                 f"{campaign.paths.family_json} {what}; delete it: the loop rewrites it from the records"
             )
         self.registry = registry
-        repair_torn_tail(campaign.paths.runs_log)
+        campaign.repair()
         self.state = campaign.state(self.family)
         self.writer = CampaignWriter(campaign, self.state, self.elapsed)
         for record in self.state.records:
