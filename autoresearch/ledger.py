@@ -21,6 +21,7 @@ family.json (``seed_noise``, and ``best`` with every field of a promotion): it r
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -92,9 +93,23 @@ def update(
     with locked(family_json):
         registry = read_json(family_json)
         ledger, outcome = decide(registry, Ledger.read(family_dir, registry))
-        write_json_atomic(Path(family_dir) / LEDGER_FILE, ledger.to_json())
         registry.pop("seed_noise", None)  # the old layout's, now the ledger's
         if isinstance(registry.get("best"), dict):
             registry["best"] = best_of(registry["best"])
-        write_json_atomic(family_json, registry)
+        written = {Path(family_dir) / LEDGER_FILE: ledger.to_json(), family_json: registry}
+        for path, data in written.items():  # both checked before either is written
+            _require_finite(path, data)
+        for path, data in written.items():
+            write_json_atomic(path, data)
     return outcome
+
+
+def _require_finite(path: Path, data: Any) -> None:
+    """Refuse what every reader of a family would then refuse: NaN or Infinity (not JSON)."""
+    try:
+        json.dumps(data, allow_nan=False)
+    except ValueError:
+        raise JournalError(
+            f"{path}: the audit's result holds a number that is not finite (NaN or Infinity); nothing was "
+            "written"
+        ) from None

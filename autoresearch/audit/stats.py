@@ -34,13 +34,34 @@ class NoiseFloor:
     k: int
 
 
+def mean_sd(values: Sequence[float]) -> tuple[float, float | None]:
+    """The sample mean and the Bessel-corrected sd (None for one value) of finite values, computed on
+    the values scaled by their largest magnitude, so that neither sums nor squares overflow where the
+    values themselves are finite (1e160 apart squares to infinity). ValueError when a statistic
+    itself lies beyond a float (values near 1.8e308 of both signs): it is refused, never written."""
+    x = np.asarray(values, dtype=float)
+    scale = float(np.max(np.abs(x))) if x.size else 0.0
+    if not math.isfinite(scale):
+        raise ValueError(f"statistics of non-finite values: {list(values)!r}")
+    scale = scale or 1.0
+    unit = x / scale
+    mean = float(unit.mean()) * scale
+    sd = float(unit.std(ddof=1)) * scale if len(x) >= 2 else None
+    if not math.isfinite(mean) or (sd is not None and not math.isfinite(sd)):
+        raise ValueError(
+            f"the mean or the spread of {len(x)} values up to {scale:.3g} in magnitude is too large for a "
+            "float: rescale the metric"
+        )
+    return mean, sd
+
+
 def noise_floor(values: Sequence[float]) -> NoiseFloor:
     """Eq. noisefloor. K >= 2 is enforced: one seed has no spread to measure."""
     k = len(values)
     if k < 2:
         raise ValueError(f"seed noise needs K >= 2 seeds (got K={k}): one run has no spread to measure")
-    x = np.asarray(values, dtype=float)
-    return NoiseFloor(mean=float(x.mean()), std=float(x.std(ddof=1)), k=k)
+    mean, sd = mean_sd(values)
+    return NoiseFloor(mean=mean, std=sd, k=k)
 
 
 def _require_noise(sigma: float) -> None:
@@ -91,9 +112,7 @@ def reseed_gate(
     n = len(values)
     if n == 0:
         raise ValueError("reseed_gate: no valid reseeds")
-    x = np.asarray(values, dtype=float)
-    mu_r = float(x.mean())
-    sigma_r = float(x.std(ddof=1)) if n >= 2 else None
+    mu_r, sigma_r = mean_sd(values)
     margin = sign * (mu_r - mu0) / sigma
     all_feasible = all(feasible)
     failures = []
