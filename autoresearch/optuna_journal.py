@@ -3,9 +3,12 @@ and its parameter importances read it, after the fact (``autoresearch export``) 
 --optuna-journal``).
 
 The campaign's files stay the record of truth: the journal is derived from its records (read
-through the campaign store) and can be rebuilt at any time. One study per campaign, named after
-its directory, with the family's direction. Every iteration that started a run is one trial, with
-the full configuration as its params (the family's distributions):
+through the campaign store) and can be rebuilt at any time. One study per campaign, with the
+family's direction, named after its directory; the study says which campaign it is (user attribute
+``campaign``: family, proposer, creation time), so two campaigns of one name in one journal file
+are two studies (the second named ``<dir> [<created>]``), never one merged study. Every iteration
+that started a run is one trial, with the full configuration as its params (the family's
+distributions):
 
 - a run that ran is COMPLETE with its metric; a failed one is FAIL; one stopped by the early stopper
   is PRUNED, its PROGRESS points the trial's intermediate values;
@@ -30,7 +33,7 @@ from optuna.storages import JournalStorage
 from optuna.storages.journal import JournalFileBackend
 from optuna.trial import TrialState
 
-from autoresearch.campaign import Campaign, Record, Status
+from autoresearch.campaign import Campaign, CampaignError, Record, Status
 from autoresearch.family import Family
 from autoresearch.proposers.optuna_space import distributions
 
@@ -41,22 +44,37 @@ _STATES = {
 }
 
 
+CAMPAIGN_ATTR = "campaign"  # the study's user attribute naming the campaign it is
+
+
 class OptunaJournal:
     """The study of one campaign in the journal file at ``path`` (created when missing)."""
 
-    def __init__(self, path: str | Path, family: Family, study_name: str):
+    def __init__(self, path: str | Path, family: Family, campaign: Campaign):
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         self.family = family
         self.distributions = distributions(family.space)
-        storage = JournalStorage(JournalFileBackend(str(Path(path))))
-        self.study = optuna.create_study(
-            storage=storage, study_name=study_name, direction=family.direction.study, load_if_exists=True
-        )
-        self.study.set_user_attr("metric", family.metric)
-        with warnings.catch_warnings():  # experimental since Optuna 3.2, read by the dashboard's axes
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            self.study.set_metric_names([family.metric])
-        self.study.set_user_attr("family", family.name)
+        meta = campaign.meta()
+        identity = f"{meta.family_name}, {meta.proposer}, created {meta.created}"
+        try:
+            storage = JournalStorage(JournalFileBackend(str(Path(path))))
+            name = _study_name(storage, path, campaign.root.name, meta.created, identity, family)
+            self.study = optuna.create_study(
+                storage=storage, study_name=name, direction=family.direction.study, load_if_exists=True
+            )
+            self.study.set_user_attr(CAMPAIGN_ATTR, identity)
+            self.study.set_user_attr("metric", family.metric)
+            with warnings.catch_warnings():  # experimental since Optuna 3.2, read by the dashboard's axes
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                self.study.set_metric_names([family.metric])
+            self.study.set_user_attr("family", family.name)
+        except (OSError, CampaignError):
+            raise
+        except Exception as err:  # whatever Optuna's replay of a file that is no journal raises
+            raise CampaignError(
+                f"{path}: not an Optuna journal file ({type(err).__name__}: {err}); give --optuna-journal a "
+                "new file or one Optuna wrote"
+            ) from None
         self.added = {trial.user_attrs.get("iteration") for trial in self.study.get_trials(deepcopy=False)}
 
     def add(self, record: Record) -> bool:
@@ -98,11 +116,32 @@ class OptunaJournal:
         return sum(self.add(record) for record in sorted(records, key=lambda r: r.iteration))
 
 
+def _study_name(
+    storage: JournalStorage, path: str | Path, base: str, created: str, identity: str, family: Family
+) -> str:
+    """The campaign's study in the journal: the directory's name, unless a study of that name is
+    another campaign's (then ``<dir> [<created>]``). A study written before studies said whose they
+    were is this campaign's when its family and direction are."""
+    studies = {study.study_name: study for study in storage.get_all_studies()}
+    for name in (base, f"{base} [{created}]"):
+        study = studies.get(name)
+        if study is None:
+            return name
+        owner = study.user_attrs.get(CAMPAIGN_ATTR)
+        unmarked = owner is None and study.user_attrs.get("family") == family.name
+        if owner == identity or (unmarked and study.direction.name.lower() == family.direction.study):
+            return name
+    raise CampaignError(
+        f"{path}: the studies {base!r} and {base + f' [{created}]'!r} there are other campaigns'; "
+        "write this campaign's to another journal file"
+    )
+
+
 def export_campaign(campaign_dir: str | Path, path: str | Path) -> tuple[OptunaJournal, int]:
     """Write (or bring up to date) the study of the campaign in ``campaign_dir`` in ``path``."""
     store = Campaign(campaign_dir)
     family = store.meta().open_family(store.root)
-    journal = OptunaJournal(path, family, store.root.name)
+    journal = OptunaJournal(path, family, store)
     return journal, journal.sync(store.records())
 
 
@@ -112,7 +151,7 @@ class LiveFeed:
     rebuilds it."""
 
     def __init__(self, path: str | Path, family: Family, campaign: Campaign):
-        self.journal: OptunaJournal | None = OptunaJournal(path, family, campaign.root.name)
+        self.journal: OptunaJournal | None = OptunaJournal(path, family, campaign)
         self.journal.sync(campaign.records())
 
     def __call__(self, record: Record) -> None:

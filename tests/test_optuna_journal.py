@@ -121,3 +121,35 @@ def test_a_real_dashboard_serves_the_campaign_while_the_loop_runs(tmp_path):
         dashboard.wait(timeout=10)
         if loop.poll() is None:
             loop.kill()
+
+
+def test_two_campaigns_of_one_name_are_two_studies_never_merged(tmp_path):
+    toy = copy_toy(tmp_path)
+    maximizing = copy_toy(tmp_path, "toy-max")
+    registry = json.loads((maximizing / "family.json").read_text())
+    (maximizing / "family.json").write_text(
+        json.dumps({**registry, "name": "toy-max", "direction": "maximize"})
+    )
+    journal = tmp_path / "both.log"
+    exported = {}
+    for family, script in ((toy, [{"EPOCHS": 12}]), (maximizing, [{"EPOCHS": 14}, {"EPOCHS": 15}])):
+        campaign = tmp_path / family.name / "camp"  # both directories are called camp
+        run_loop(family, ScriptedProposer(script), campaign, max_iters=len(script) + 1)
+        CampaignMeta.new(Family.load(family), "scripted", {}).write(campaign)
+        study, added = export_campaign(campaign, journal)
+        exported[family.name] = (campaign, study.study.study_name, added)
+    (first, name, added), (second, other, added_too) = exported["toy"], exported["toy-max"]
+    assert name == "camp" and other.startswith("camp [") and (added, added_too) == (2, 3)
+    assert load(journal, name).direction.name == "MINIMIZE" and len(load(journal, name).trials) == 2
+    assert load(journal, other).direction.name == "MAXIMIZE" and len(load(journal, other).trials) == 3
+    # Each finds its own study again, and adds nothing to it.
+    assert export_campaign(first, journal)[0].study.study_name == name
+    assert export_campaign(second, journal)[1] == 0
+    assert (
+        len(
+            optuna.get_all_study_names(
+                optuna.storages.JournalStorage(optuna.storages.journal.JournalFileBackend(str(journal)))
+            )
+        )
+        == 2
+    )
