@@ -3,6 +3,7 @@ and never re-reads ``\\r`` progress, whatever a train.py prints (issue 29, item 
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import subprocess
@@ -12,13 +13,17 @@ import textwrap
 import pytest
 from loop_helpers import copy_toy
 
-from autoresearch.execution.protocol import MAX_LINE, StdoutReader, read_final_metric
+from autoresearch.execution.protocol import MAX_LINE, MAX_POINTS, StdoutReader, read_final_metric
 
 # train.py of the toy copy: TOY_SPAM=lines:N prints N MB of short lines, cr:N prints N MB of
 # carriage-return progress without a newline, err:N prints N MB to stderr and fails; a PROGRESS point
-# sits in the middle of the spam, the FINAL_METRIC line comes last.
+# sits in the middle of the spam, the FINAL_METRIC line comes last. points:N prints N PROGRESS points.
 _SPAM = """    spam = os.environ.get("TOY_SPAM")
-    if spam:
+    if spam and spam.startswith("points:"):
+        for i in range(int(spam.split(":")[1])):
+            sys.stdout.write(f'PROGRESS: {{"step": {i}, "loss": {1 / (1 + i)}}}\\n')
+        sys.stdout.flush()
+    elif spam:
         kind, mb = spam.split(":")
         if kind == "lines":
             chunk = ("x" * 63 + "\\n") * 16384
@@ -127,3 +132,27 @@ def test_the_reader_keeps_protocol_lines_across_blocks_and_line_ends(tmp_path):
     reader = StdoutReader(path, "loss", None)
     reader.finish()
     assert read_final_metric(reader.finals, reader.n_finals, "loss", "r")[1:] == (0.3, None)
+
+
+def test_a_run_reporting_without_end_keeps_a_bounded_curve(tmp_path):
+    out = _drive(tmp_path, "points:300000")
+    assert out["status"] == "ok", out["reason"]
+    curve = out["progress"]
+    assert len(curve) <= MAX_POINTS + 1 and curve[-1] == {"step": 299999, "value": 1 / 300000}
+    gaps = {b["step"] - a["step"] for a, b in itertools.pairwise(curve[:-1])}
+    assert curve[0]["step"] == 0 and len(gaps) == 1  # evenly thinned, from the first point on
+    assert out["growth_mb"] < 16, out  # 300k points grew it by about 100 MB when all were kept
+
+
+def test_the_thinned_curve_hears_every_point_and_keeps_the_last(tmp_path):
+    path = tmp_path / "stdout.txt"
+    heard = []
+    reader = StdoutReader(path, "loss", lambda step, value: heard.append(step) or False)
+    path.write_text("".join(f'PROGRESS: {{"step": {i}, "loss": 1.0}}\n' for i in range(5 * MAX_POINTS + 3)))
+    reader.finish()
+    assert heard == []  # finish() judges nothing
+    reader = StdoutReader(path, "loss", lambda step, value: heard.append(step) or False)
+    reader.poll(budget=10**9)
+    assert heard == list(range(5 * MAX_POINTS + 3))  # every point is heard (an early-stop pruner)
+    steps = [point["step"] for point in reader.curve]
+    assert steps[:3] == [0, 8, 16] and steps[-2:] == [5000, 5002] and len(steps) == 627

@@ -23,6 +23,9 @@ _FINAL, _PROGRESS = FINAL_METRIC_PREFIX.encode(), PROGRESS_PREFIX.encode()
 READ_BLOCK = 1 << 20
 POLL_READ = 16 << 20
 MAX_LINE = 1 << 20
+# A run's learning curve is kept thinned to at most this many points, evenly spaced, and its last;
+# every point is still heard (an early-stop pruner judges each). The prompts subsample it further.
+MAX_POINTS = 1000
 
 
 def check_final_metric(final_metric: Any, metric: str, run_id: str) -> tuple[float | None, str | None]:
@@ -141,8 +144,9 @@ class StdoutReader:
     """Reads a run's stdout file as it grows, in bounded memory, and keeps only the protocol lines.
 
     A line ends at ``\n`` or ``\r`` (a progress bar's carriage returns end lines too, so they are
-    read once and dropped). Each PROGRESS point is kept and ``on_report(step, value)`` is asked;
-    once it answers True, ``stop`` is set. Of the FINAL_METRIC lines the first is kept and all are
+    read once and dropped). Each PROGRESS point is heard by ``on_report(step, value)``; once it
+    answers True, ``stop`` is set. The points are kept thinned (:attr:`curve`: at most
+    :data:`MAX_POINTS` of them, evenly spaced, and the last). Of the FINAL_METRIC lines the first is kept and all are
     counted. A line longer than :data:`MAX_LINE` bytes is skipped (a FINAL_METRIC one is counted),
     so memory stays bounded whatever the run prints.
     """
@@ -152,7 +156,9 @@ class StdoutReader:
         self.offset = 0
         self.partial = b""  # the start of a line not yet ended
         self.skipping = False  # inside a line longer than MAX_LINE, dropped up to its end
-        self.points: list[dict[str, Any]] = []
+        self.points: list[dict[str, Any]] = []  # every stride-th point heard
+        self.last: dict[str, Any] | None = None  # the last point heard
+        self._heard, self._stride = 0, 1
         self.finals: list[str] = []  # the first FINAL_METRIC line
         self.n_finals = 0
         self.stop = False
@@ -215,6 +221,23 @@ class StdoutReader:
         point = parse_progress(raw.decode("utf-8", errors="replace"), self.metric)
         if point is None or self.stop:
             return
-        self.points.append(point)
+        self._keep(point)
         if self.on_report is not None and self.on_report(point["step"], point["value"]):
             self.stop = True
+
+    def _keep(self, point: dict[str, Any]) -> None:
+        index, self._heard, self.last = self._heard, self._heard + 1, point
+        if index % self._stride:
+            return
+        if len(self.points) == MAX_POINTS:  # full: every other point goes and the spacing doubles
+            self.points, self._stride = self.points[::2], 2 * self._stride
+            if index % self._stride:
+                return
+        self.points.append(point)
+
+    @property
+    def curve(self) -> list[dict[str, Any]]:
+        """The learning curve as kept: the thinned points, then the last point heard."""
+        if self.last is None or (self.points and self.points[-1] is self.last):
+            return list(self.points)
+        return [*self.points, self.last]

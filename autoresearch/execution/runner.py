@@ -16,8 +16,9 @@ training under ``splits`` too. A search run whose FINAL_METRIC says it saw the t
 
 A train.py may also print ``PROGRESS: {"step": <int>, "<metric>": <number>}`` lines (family
 contract, optional). They are read from the run's stdout file as they come, by the thread that
-supervises the run, kept as the run's learning curve, and handed to ``on_report``; when it answers
-True the run is stopped early (its process group killed) with status ``early_stopped``.
+supervises the run, kept as the run's learning curve (thinned to at most ``protocol.MAX_POINTS``
+points and the last), and each handed to ``on_report``; when it answers True the run is stopped
+early (its process group killed) with status ``early_stopped``.
 """
 
 from __future__ import annotations
@@ -158,13 +159,13 @@ def run_locally(spec: RunSpec, hooks: RunHooks = NO_HOOKS, die_with_supervisor: 
         tracking.kill_all(tracked)
     wall = time.monotonic() - started
     if reader.stop:
-        last = reader.points[-1]
+        last = reader.last
         reason = f"stopped early at step {last['step']} ({family.metric} {last['value']:.6g} then)"
         result = RunResult("early_stopped", spec.run_id, None, reason, wall, returncode)
     else:
         reader.finish()
         result = _result(spec, reader, returncode, wall, timed_out)
-    result = replace(result, progress=reader.points or None)
+    result = replace(result, progress=reader.curve or None)
     write_json_atomic(run_dir / RESULT_FILE, result.to_json())
     return result
 
