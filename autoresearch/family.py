@@ -31,6 +31,7 @@ from autoresearch.space import NUMERIC_TYPES, SearchSpace, SpaceError, Validatio
 from autoresearch.splits import ScoredRun, Split
 
 REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")
+TEXT_FILES = ("program.md", "program_blind.md", "train.py")  # read as UTF-8 text by the loop
 # A family name becomes part of paths (runs/<name>-...): a plain file name, nothing to escape.
 PLAIN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 
@@ -217,8 +218,16 @@ def _read(path: Path) -> tuple[Any, Ledger | None, SearchSpace | None, str | Non
         return None, None, None, None, problems
     try:
         registry = json.loads((path / "family.json").read_text(encoding="utf-8"))
-    except ValueError as err:
+    except ValueError as err:  # bad UTF-8 included
         return None, None, None, None, [*problems, f"{path / 'family.json'}: not valid JSON ({err})"]
+    except RecursionError:
+        return (
+            None,
+            None,
+            None,
+            None,
+            [*problems, f"{path / 'family.json'}: not valid JSON (nested too deeply)"],
+        )
     space, registry_problems = _registry_problems(registry, path / "family.json")
     problems += registry_problems
     ledger = None
@@ -230,10 +239,20 @@ def _read(path: Path) -> tuple[Any, Ledger | None, SearchSpace | None, str | Non
             problems.append(str(err))
         else:
             problems += _noise_problems(ledger.seed_noise, where)
-    source = None if "train.py" in missing else (path / "train.py").read_text(encoding="utf-8")
+    texts = {name: _text(path / name, problems) for name in TEXT_FILES if name not in missing}
+    source = texts.get("train.py")
     if space is not None and source is not None:
         problems += _train_py_problems(source, registry, space, path / "train.py")
     return registry, ledger, space, source, problems
+
+
+def _text(path: Path, problems: list[str]) -> str | None:
+    """The file's text, or None with the problem noted when it is not UTF-8."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        problems.append(f"{path}: not UTF-8 text ({err.reason} at byte {err.start})")
+        return None
 
 
 def _noise_problems(noise: Any, where: Path) -> list[str]:

@@ -96,6 +96,8 @@ class ParamSpec:
                 raise SpaceError(f"{where}: 'high_exclusive' must be true or false")
             if not (low < high or (low == high and not exclusive)):
                 raise SpaceError(f"{where}: the domain [{low}, {high}{')' if exclusive else ']'} is empty")
+            if kind != "log-real" and not math.isfinite(float(high) - float(low)):  # the samplers' arithmetic
+                raise SpaceError(f"{where}: the width high - low must be a number a float can hold")
             fields = {"low": low, "high": high, "high_exclusive": exclusive}
         elif kind == "bool" and "choices" in spec:  # a bool held to one value (a protocol's restriction)
             allowed.add("choices")

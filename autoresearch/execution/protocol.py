@@ -63,7 +63,8 @@ def _unbounded_int(data: Any) -> str | None:
 
 
 def _describe(value: Any) -> str:
-    text = repr(value) if is_finite_number(value) or not isinstance(value, int) else "a huge integer"
+    huge = isinstance(value, int) and not isinstance(value, bool) and not is_finite_number(value)
+    text = "a huge integer" if huge else json.dumps(value) if isinstance(value, bool) else repr(value)
     return text if len(text) <= 80 else text[:77] + "..."
 
 

@@ -16,6 +16,9 @@ from autoresearch.campaign import Record, Status
 from autoresearch.proposers.base import Proposal
 
 MAX_ROWS = 20
+# What a plain line may not pass to the terminal from a run's output or a proposal: control
+# characters (ESC starts ANSI sequences that retitle or clear it), bar the tab and the newline.
+_CONTROL = {c: f"\\x{c:02x}" for c in (*range(0x20), *range(0x7F, 0xA0)) if c not in (0x09, 0x0A)}
 
 
 def _short(value: Any, width: int) -> str:
@@ -98,7 +101,7 @@ class PlainView(View):
             body = record.reason or ""
         tail = f"best={_number(record.best_so_far)} spend=${record.cumulative_cost_usd:.4f} | {closest}"
         self.in_flight.discard(record.run_id)
-        print(f"{head} {body} | {tail}", file=self.stream, flush=True)
+        print(f"{head} {body} | {tail}".translate(_CONTROL), file=self.stream, flush=True)
 
 
 class RichView(View):

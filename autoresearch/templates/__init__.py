@@ -53,8 +53,9 @@ def write_family(target: Path, template: str, name: str | None = None) -> dict[s
         )
     if target.exists() and not (target.is_dir() and not any(target.iterdir())):
         raise TemplateError(f"{target}: exists and is not an empty directory")
-    source = templates[template].load()()
-    registry = json.loads((source / "family.json").read_text(encoding="utf-8"))
+    if target.is_symlink():  # a link to an empty directory: the family goes where it points
+        target = target.resolve()
+    source, registry = _read_template(templates[template])
     registry = {k: v for k, v in registry.items() if k != "seed_noise"}  # a template in the old layout
     registry.update(name=name, best=None)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -73,6 +74,23 @@ def write_family(target: Path, template: str, name: str | None = None) -> dict[s
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return registry
+
+
+def _read_template(entry: EntryPoint) -> tuple[Any, dict[str, Any]]:
+    """The template's directory and its family.json; TemplateError for whatever a third-party
+    template gets wrong (its entry point raises, its family.json is missing or no JSON object)."""
+    try:
+        source = entry.load()()
+        registry = json.loads((source / "family.json").read_text(encoding="utf-8"))
+    except RecursionError:
+        registry = None
+    except Exception as err:  # the template's own code, and its files: anything can go wrong there
+        raise TemplateError(
+            f"template {entry.name!r} ({entry.value}) cannot be read: {type(err).__name__}: {err}"
+        ) from None
+    if not isinstance(registry, dict):
+        raise TemplateError(f"template {entry.name!r} ({entry.value}): its family.json holds no JSON object")
+    return source, registry
 
 
 def _umask() -> int:
