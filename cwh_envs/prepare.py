@@ -42,6 +42,9 @@ class DataNeeds:
     obs_dim: int  # the observation width the demonstrations must have
     pool_recovery: int | None = None  # the recovery pool (docking's augmentation knob), if any
     n_test: int | None = None  # the sealed test split (train.py --eval-split test), if any
+    # docking: other keep-out standoffs the demonstrations may keep (a family's EXPERT_MARGIN); each
+    # adds a training pool and a recovery pool built with the problem at that margin
+    expert_margins: tuple[float, ...] = ()
 
 
 def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
@@ -63,21 +66,30 @@ def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
 
         return (f"{task} {name} split: evaluation_set(n={n}, split={name!r})", n, held_out)
 
-    call = f"demonstrations(n={needs.pool_demos}, seed={seed})"
-    sets = [(f"{task} training pool: {call}", needs.pool_demos, pool), split("search", needs.n_eval)]
-    if needs.n_test is not None:
-        sets.append(split("test", needs.n_test))
-    if needs.pool_recovery is not None:
+    margins = [m for m in needs.expert_margins if m != problem.margin]
+    experts = [("", problem), *((f" (expert margin {m} m)", problem.replace(margin=m)) for m in margins)]
+    pools, recoveries = [], []
+    for where, expert in experts:
 
-        def recovery(build):
+        def pool(build, expert=expert):
+            demos = datasets.demonstrations(task, needs.pool_demos, seed=seed, problem=expert, build=build)
+            return demos.starts, demos.goals, demos
+
+        def recovery(build, expert=expert):
             demos = datasets.recovery_demonstrations(
-                task, needs.pool_recovery, seed=seed, problem=problem, build=build
+                task, needs.pool_recovery, seed=seed, problem=expert, build=build
             )
             return demos.starts, demos.goals, demos
 
-        call = f"recovery_demonstrations(n={needs.pool_recovery}, seed={seed})"
-        sets.append((f"{task} recovery pool: {call}", needs.pool_recovery, recovery))
-    return sets
+        call = f"demonstrations(n={needs.pool_demos}, seed={seed})"
+        pools.append((f"{task} training pool{where}: {call}", needs.pool_demos, pool))
+        if needs.pool_recovery is not None:
+            call = f"recovery_demonstrations(n={needs.pool_recovery}, seed={seed})"
+            recoveries.append((f"{task} recovery pool{where}: {call}", needs.pool_recovery, recovery))
+    sets = [*pools, split("search", needs.n_eval)]
+    if needs.n_test is not None:
+        sets.append(split("test", needs.n_test))
+    return [*sets, *recoveries]
 
 
 def inconsistency(needs: DataNeeds, expected: int, starts, goals, demos) -> str | None:

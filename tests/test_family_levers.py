@@ -19,7 +19,7 @@ from test_families import family_copy, final_metric, run
 from cwh_envs import experts
 from cwh_envs.controllers import MinEnergyFeedback, pd_action
 from cwh_envs.datasets import evaluation_starts
-from cwh_envs.prepare import load_train
+from cwh_envs.prepare import DataNeeds, load_train, required_sets
 from cwh_envs.rollout import fly
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -204,3 +204,26 @@ def test_a_time_budget_cuts_training_and_the_run_is_scored_as_it_stands(tmp_path
     assert math.isfinite(record["mean_terminal_distance"]) and "runaway_share" in record
     refused = run_with(family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "-3"})
     assert refused.returncode != 0 and "AUTORESEARCH_TIME_BUDGET must be a positive number" in refused.stderr
+
+
+def test_each_expert_margin_has_its_own_pools_and_the_default_is_the_problems(trains):
+    train = trains["docking"]
+    needs = DataNeeds(
+        task=train.TASK,
+        problem=train.PROBLEM,
+        pool_demos=8,
+        data_seed=0,
+        n_eval=4,
+        obs_dim=train.OBS_DIM,
+        pool_recovery=4,
+        expert_margins=train.EXPERT_MARGINS,
+    )
+    described = [description for description, _, _ in required_sets(needs)]
+    assert len(described) == 1 + 2 * len(
+        train.EXPERT_MARGINS
+    )  # the search split, a pool and a recovery pool each
+    for margin in (0.75, 1.0):
+        assert sum(f"(expert margin {margin} m)" in d for d in described) == 2
+    assert train.expert_problem(defaults(train)) == train.PROBLEM  # the default keeps the old data
+    assert train.expert_problem({**defaults(train), "EXPERT_MARGIN": 0.75}).margin == 0.75
+    assert "EXPERT_MARGINS" in (ROOT / "families" / "docking" / "prepare.py").read_text()

@@ -32,7 +32,9 @@ policy as deployed from training starts, relabel every visited state with the ex
 remaining horizon (receding-horizon MPC, cwh_envs.mpc, whose soft re-plan labels the states the
 hard expert cannot answer from), add them to the training set and train on. BOX_AWARE_LOSS stops
 penalising an output beyond the thrust box where the expert's action is at the box (the env clips
-both to the same thrust).
+both to the same thrust). EXPERT_MARGIN solves the demonstrations (and DAgger's labels) with a wider
+keep-out standoff than the filter's 0.5 m, so that a policy cutting the expert's corner by less than
+the difference never wakes the filter.
 """
 
 from __future__ import annotations
@@ -76,6 +78,7 @@ RECOVERY_AUGMENT_FRAC = 0.0  # recovery trajectories added, as a fraction of N_D
 POLICY_FORM = "direct"  # "direct": the network is the policy; "residual": a correction to the closed-form law
 RESIDUAL_SCALE = 1.0  # residual form: the correction's bound per axis, a fraction of u_max (tanh-squashed)
 BOX_AWARE_LOSS = False  # True: where the expert rides the thrust box, any output beyond it counts as exact
+EXPERT_MARGIN = 0.5  # m: the keep-out standoff the demonstrations keep (the filter and the score keep 0.5)
 DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour cloning)
 DAGGER_STARTS = 32  # training starts flown (and every visited state relabelled by the SOCP MPC, ~14 ms a state) per DAgger round
 # ===== Fixed Configuration (immutable below this line) =====
@@ -119,11 +122,13 @@ CONFIG_NAMES = (
     "POLICY_FORM",
     "RESIDUAL_SCALE",
     "BOX_AWARE_LOSS",
+    "EXPERT_MARGIN",
     "DAGGER_ITERS",
     "DAGGER_STARTS",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual")
+EXPERT_MARGINS = (0.5, 0.75)  # one training pool (and recovery pool) each: prepare.py builds them all
 MAX_DAGGER_ITERS = 8
 
 
@@ -228,6 +233,8 @@ def check_config(config: dict) -> None:
     scale = config["RESIDUAL_SCALE"]
     if not (isinstance(scale, int | float) and not isinstance(scale, bool) and 0 < scale <= 10):
         problems.append("RESIDUAL_SCALE must lie in (0, 10]")
+    if config["EXPERT_MARGIN"] not in EXPERT_MARGINS:
+        problems.append(f"EXPERT_MARGIN must be one of {list(EXPERT_MARGINS)}")
     if not isinstance(config["BOX_AWARE_LOSS"], bool):
         problems.append("BOX_AWARE_LOSS must be True or False")
     iters = config["DAGGER_ITERS"]
@@ -250,15 +257,24 @@ def seed_everything(seed: int) -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
+def expert_problem(config: dict) -> DockingProblem:
+    """The problem the demonstrations (and DAgger's labels) are solved on: PROBLEM with the keep-out
+    standoff EXPERT_MARGIN, wider than the filter's, so that a policy that cuts the expert's corner
+    by less than the difference never wakes the filter (PROBLEM itself at the default)."""
+    return PROBLEM.replace(margin=config["EXPERT_MARGIN"])
+
+
 def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray, dict]:
     """Observations (M, 10) and expert thrust (M, 3) [N]: N_DEMOS demos plus the recovery share,
     and the content keys of the sets they come from."""
-    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM)
+    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=expert_problem(config))
     demos = pool.take(config["N_DEMOS"])
     obs, actions, keys = [demos.observations], [demos.actions], {"train_pool": pool.content_key}
     n_recovery = round(config["RECOVERY_AUGMENT_FRAC"] * config["N_DEMOS"])
     if n_recovery > 0:
-        recovery_pool = recovery_demonstrations(TASK, POOL_RECOVERY, seed=DATA_SEED, problem=PROBLEM)
+        recovery_pool = recovery_demonstrations(
+            TASK, POOL_RECOVERY, seed=DATA_SEED, problem=expert_problem(config)
+        )
         recovery = recovery_pool.take(n_recovery)
         obs.append(recovery.observations)
         actions.append(recovery.actions)
@@ -385,7 +401,7 @@ def dagger(config: dict, policy: Policy, obs, actions, device, generator, report
     relabel every state it visits with the expert over the remaining horizon, add those pairs to the
     training set and train EPOCHS more epochs. Returns the policy, its best loss, the training-set
     size and the relabelling's counts."""
-    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM)
+    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=expert_problem(config))
     starts, goals = pool.starts[: config["DAGGER_STARTS"]], pool.goals[: config["DAGGER_STARTS"]]
     counts = {"rounds": config["DAGGER_ITERS"], "starts": len(starts), "relabelled_states": 0}
     counts |= {"hard_labels": 0, "soft_labels": 0, "fallback_labels": 0, "last_step_law_labels": 0}
@@ -396,7 +412,8 @@ def dagger(config: dict, policy: Policy, obs, actions, device, generator, report
             counts["rounds"] = round_ - 1
             break
         started = time.perf_counter()
-        new_obs, new_actions, labels = relabel(fly(policy, starts, goals, config["RUNTIME_CBF_FILTER"]))
+        flight = fly(policy, starts, goals, config["RUNTIME_CBF_FILTER"])
+        new_obs, new_actions, labels = relabel(flight, expert_problem(config))
         counts["relabel_seconds"] += time.perf_counter() - started
         for key, value in labels.items():
             counts[key] += value
@@ -408,13 +425,14 @@ def dagger(config: dict, policy: Policy, obs, actions, device, generator, report
     return policy, best_loss, len(obs), counts
 
 
-def relabel(flight: Flight) -> tuple[np.ndarray, np.ndarray, dict]:
+def relabel(flight: Flight, expert_at: DockingProblem = PROBLEM) -> tuple[np.ndarray, np.ndarray, dict]:
     """Observations (N H, 10) of every state a flight visited (steps 0..H-1) and the expert's thrust
     [N] there: receding-horizon MPC flown over the visited states in time order, so that each state
     gets the first control of the expert re-solved over the steps left, warm-started from the same
     start's previous label; the soft expert (every constraint and the terminal state as penalties)
-    where the hard one cannot answer, and at the last step the closed-form law's one-step control."""
-    expert = RecedingHorizon(PROBLEM)
+    where the hard one cannot answer, and at the last step the closed-form law's one-step control.
+    ``expert_at``: the problem the expert solves (EXPERT_MARGIN's standoff)."""
+    expert = RecedingHorizon(expert_at)
     horizon = PROBLEM.horizon
     obs = [
         docking_observation(flight.states[:, k], flight.goals, k, horizon, dtype=np.float64)

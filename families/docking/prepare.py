@@ -29,6 +29,7 @@ NEEDS = DataNeeds(
     n_test=train.N_TEST,
     obs_dim=train.OBS_DIM,
     pool_recovery=train.POOL_RECOVERY,
+    expert_margins=train.EXPERT_MARGINS,
 )
 
 if __name__ == "__main__":
