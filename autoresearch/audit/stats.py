@@ -35,19 +35,29 @@ class NoiseFloor:
 
 
 def mean_sd(values: Sequence[float]) -> tuple[float, float | None]:
-    """The sample mean and the Bessel-corrected sd (None for one value) of finite values, computed on
-    the values scaled by their largest magnitude, so that neither sums nor squares overflow where the
-    values themselves are finite (1e160 apart squares to infinity). ValueError when a statistic
-    itself lies beyond a float (values near 1.8e308 of both signs): it is refused, never written."""
+    """The sample mean and the Bessel-corrected sd (None for one value) of finite values. Where the
+    plain sums overflow although the values are finite (1e160 apart squares to infinity) they are
+    computed again on the values scaled by their largest magnitude; otherwise the plain result
+    stands, to the last bit. ValueError when a statistic itself lies beyond a float (values near
+    1.8e308 of both signs): it is refused, never written."""
     x = np.asarray(values, dtype=float)
-    scale = float(np.max(np.abs(x))) if x.size else 0.0
-    if not math.isfinite(scale):
+    if not np.isfinite(x).all():
         raise ValueError(f"statistics of non-finite values: {list(values)!r}")
-    scale = scale or 1.0
-    unit = x / scale
-    mean = float(unit.mean()) * scale
-    sd = float(unit.std(ddof=1)) * scale if len(x) >= 2 else None
-    if not math.isfinite(mean) or (sd is not None and not math.isfinite(sd)):
+
+    def plain(x: np.ndarray) -> tuple[float, float | None]:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return float(x.mean()), float(x.std(ddof=1)) if len(x) >= 2 else None
+
+    def finite(mean: float, sd: float | None) -> bool:
+        return math.isfinite(mean) and (sd is None or math.isfinite(sd))
+
+    mean, sd = plain(x)
+    if finite(mean, sd):
+        return mean, sd
+    scale = float(np.max(np.abs(x)))
+    mean, sd = plain(x / scale)
+    mean, sd = mean * scale, None if sd is None else sd * scale
+    if not finite(mean, sd):
         raise ValueError(
             f"the mean or the spread of {len(x)} values up to {scale:.3g} in magnitude is too large for a "
             "float: rescale the metric"
