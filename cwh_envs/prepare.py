@@ -4,7 +4,8 @@ train.py can read.
 The family states those sets itself, as a :class:`DataNeeds` built from its own train.py constants
 (so the two cannot disagree), and passes it to :func:`main`: this library never reads a family's
 files. The sets live in the cwh_envs cache ($CWH_ENVS_CACHE, else ~/.cache/cwh_envs). A family's
-report.py loads its own train.py with :func:`load_train`.
+report.py loads its own train.py with :func:`load_train`, and says what a saved run scored, split by
+split, with :func:`scored_per_split`.
 """
 
 from __future__ import annotations
@@ -28,6 +29,23 @@ def load_train(family_dir: str | Path):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+SPLIT_WORDS = {"search": "search-split", "test": "sealed test-split"}
+
+
+def scored_per_split(record: dict, train, words: str) -> str:
+    """What a saved run scored on each split its FINAL_METRIC object holds, each named with its
+    number of starts (``train.N_EVAL``, ``train.N_TEST``): a figure must never print one split's
+    number beside the other's count. ``words`` formats one split's metrics (``str.format_map``); a
+    record without ``splits`` is its own split's."""
+    splits = record.get("splits") or {record.get("eval_split", "search"): record}
+    counts = {"search": train.N_EVAL, "test": getattr(train, "N_TEST", None)}
+    return "; ".join(
+        f"{words.format_map(splits[name])} on the {counts[name]} {SPLIT_WORDS[name]} starts"
+        for name in SPLIT_WORDS
+        if name in splits
+    )
 
 
 @dataclass(frozen=True)

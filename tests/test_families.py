@@ -26,6 +26,7 @@ import cwh_envs
 from autoresearch.editable import read_region
 from autoresearch.execution.protocol import parse_progress
 from autoresearch.family import Family
+from cwh_envs import prepare
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")
@@ -203,6 +204,53 @@ def test_saved_policy_reloads_and_reproduces_the_metric(name, warm, tmp_path, mo
         check=True,
     )
     assert png.stat().st_size > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", FAMILIES)
+def test_the_report_figure_names_each_split_with_its_own_count(name, warm, tmp_path):
+    """Issue 39, item 1: an audit run is scored on both splits; its figure must not print the test
+    split's number beside the search split's count."""
+    family, cache = warm[name]
+    out = tmp_path / "out"
+    args = ("--runs-log", str(tmp_path / "log"), "--out", str(out), "--eval-split", "test")
+    record = final_metric(run(family / "train.py", *args, cache=cache, check=True).stdout)
+    shown = run(
+        family / "report.py",
+        "--policy",
+        str(out),
+        "--out",
+        str(tmp_path / "r.png"),
+        "--starts",
+        "1",
+        cache=cache,
+        check=True,
+    ).stdout
+    search, test = (record["splits"][split][METRICS[name]] for split in ("search", "test"))
+    words = {"rendezvous": "mean terminal distance {:.3g} m", "docking": "score {:.3g}"}[name]
+    assert f"{words.format(search)}" in shown and f"{words.format(test)}" in shown
+    search_part, test_part = shown.split(": ", 2)[2].split("; ")
+    assert search_part.startswith(words.format(search)) and search_part.endswith(
+        "on the 12 search-split starts"
+    )
+    assert test_part.startswith(words.format(test)) and test_part.endswith(
+        "on the 24 sealed test-split starts\n"
+    )
+
+
+def test_a_saved_runs_scores_are_worded_per_split():
+    train = type("Train", (), {"N_EVAL": 128, "N_TEST": 1024})
+    record = {
+        "loss": 1.848,
+        "eval_split": "test",
+        "splits": {"search": {"loss": 1.717}, "test": {"loss": 1.848}},
+    }
+    assert prepare.scored_per_split(record, train, "{loss:.3g} m") == (
+        "1.72 m on the 128 search-split starts; 1.85 m on the 1024 sealed test-split starts"
+    )
+    assert (
+        prepare.scored_per_split({"loss": 2.0}, train, "{loss:.3g} m") == "2 m on the 128 search-split starts"
+    )
 
 
 @pytest.mark.slow

@@ -1,4 +1,4 @@
-"""Fly a saved docking policy from a few held-out starts against the expert (paper Fig. traj_rpo).
+"""Fly a saved docking policy from its first search-split starts against the expert (paper Fig. traj_rpo).
 
     python report.py --policy <train.py --out dir, or its policy.pt> --out trajectories.png [--starts 5]
 
@@ -22,7 +22,7 @@ import numpy as np
 
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.experts import solve_docking
-from cwh_envs.prepare import load_train
+from cwh_envs.prepare import load_train, scored_per_split
 
 HERE = Path(__file__).resolve().parent
 
@@ -79,16 +79,18 @@ def main() -> int:
     distance.set(
         xlabel="time [s]", ylabel="distance to the docking point [m]", yscale="log", ylim=(1e-3, None)
     )
-    distance.set_title(f"terminal distance: mean {final.mean():.3g} m over these {len(starts)} starts")
-    record = saved.get("record", {})
-    fig.suptitle(
-        f"docking policy {record.get('run_id', '')}: score {record.get(train.METRIC, float('nan')):.3g}, "
-        f"strict-feasible {record.get('strict_feasible')} on {train.N_EVAL} held-out starts"
+    distance.set_title(
+        f"terminal distance: mean {final.mean():.3g} m over these {len(starts)} search-split starts"
     )
+    record = saved.get("record", {})
+    title = f"docking policy {record.get('run_id', '')}: " + scored_per_split(
+        record, train, "score {score:.3g}, strict-feasible {strict_feasible}"
+    )
+    fig.suptitle(title)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=120)
-    print(f"wrote {args.out}")
+    print(f"wrote {args.out}: {title}")
     return 0
 
 

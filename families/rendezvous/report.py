@@ -1,4 +1,4 @@
-"""Fly a saved rendezvous policy from a few held-out starts against the expert (paper Fig. trajectories).
+"""Fly a saved rendezvous policy from its first search-split starts against the expert (paper Fig. trajectories).
 
     python report.py --policy <train.py --out dir, or its policy.pt> --out trajectories.png [--starts 5]
 
@@ -20,7 +20,7 @@ import numpy as np
 
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.experts import solve_rendezvous
-from cwh_envs.prepare import load_train
+from cwh_envs.prepare import load_train, scored_per_split
 
 HERE = Path(__file__).resolve().parent
 
@@ -53,16 +53,18 @@ def main() -> int:
     paths.set_title("policy (solid) vs expert (dashed)")
     norms.set(xlabel="time [s]", ylabel="||r|| [m]")
     final = np.linalg.norm(flown[:, -1, :3], axis=1)
-    norms.set_title(f"terminal distance: mean {final.mean():.3g} m over these {len(starts)} starts")
-    record = saved.get("record", {})
-    fig.suptitle(
-        f"rendezvous policy {record.get('run_id', '')}: mean terminal distance "
-        f"{record.get(train.METRIC, float('nan')):.3g} m on {train.N_EVAL} held-out starts"
+    norms.set_title(
+        f"terminal distance: mean {final.mean():.3g} m over these {len(starts)} search-split starts"
     )
+    record = saved.get("record", {})
+    title = f"rendezvous policy {record.get('run_id', '')}: " + scored_per_split(
+        record, train, "mean terminal distance {mean_terminal_distance:.3g} m"
+    )
+    fig.suptitle(title)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=120)
-    print(f"wrote {args.out}")
+    print(f"wrote {args.out}: {title}")
     return 0
 
 
