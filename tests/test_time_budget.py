@@ -144,18 +144,7 @@ def test_the_target_is_a_report_line_unless_the_papers_rule_is_asked_for(tmp_pat
     toy = copy_toy(tmp_path)
     queue = tmp_path / "queue.json"
     queue.write_text(json.dumps(TOY_OPTIMUM))
-    args = [
-        "loop",
-        "--family",
-        toy,
-        "--proposer",
-        "random",
-        "--max-iters",
-        "4",
-        "--enqueue",
-        queue,
-        "--plain",
-    ]
+    args = f"loop --family {toy} --proposer random --max-iters 4 --enqueue {queue} --plain".split()
     assert main([*map(str, args), "--campaign", str(tmp_path / "a")]) == 0
     out = capsys.readouterr().out
     records = read_jsonl(tmp_path / "a" / "proposals.jsonl")
@@ -184,17 +173,7 @@ def test_the_stop_gate_accepts_a_met_target_only_under_the_papers_rule(tmp_path)
 @pytest.mark.parametrize("allowance", ["0", "-1"])
 def test_a_non_positive_allowance_is_refused(tmp_path, allowance, capsys):
     toy = copy_toy(tmp_path)
-    args = [
-        "loop",
-        "--family",
-        toy,
-        "--proposer",
-        "random",
-        "--time-budget",
-        "5",
-        "--eval-allowance",
-        allowance,
-    ]
+    args = f"loop --family {toy} --proposer random --time-budget 5 --eval-allowance {allowance}".split()
     with pytest.raises(SystemExit) as exit_:
         main([*map(str, args), "--campaign", str(tmp_path / "c")])
     assert exit_.value.code == 2 and "expected a positive float" in capsys.readouterr().err

@@ -99,18 +99,8 @@ def test_a_warm_start_that_cannot_be_used_is_one_line(toy, earlier, tmp_path, ca
         assert main([*map(str, args), "--warm-start", str(source)]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and said in err, err
-    args = [
-        "loop",
-        "--family",
-        toy,
-        "--proposer",
-        "random",
-        "--campaign",
-        tmp_path / "r",
-        "--warm-start",
-        earlier,
-    ]
-    assert main([*map(str, args)]) == 2
+    args = f"loop --family {toy} --proposer random --campaign {tmp_path / 'r'} --warm-start {earlier}"
+    assert main(args.split()) == 2
     assert "the random proposer draws independently" in capsys.readouterr().err
 
 

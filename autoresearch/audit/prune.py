@@ -104,6 +104,20 @@ def _blocked(row: TrialRow, full_row: TrialRow | None, split: Split) -> str | No
     return None
 
 
+def _run_trials(campaign: AuditedCampaign, trials: list[Trial], executor: Executor) -> list[TrialRow]:
+    """The pruning step's trials, each run as the campaign's runs were (its limit, its time budget)."""
+    root = campaign.step_dir(STEP)
+    return run_trials(
+        campaign.family,
+        trials,
+        executor,
+        root / "prune.jsonl",
+        root,
+        campaign.timeout,
+        time_budget=campaign.time_budget,
+    )
+
+
 def leave_one_out(
     campaign: AuditedCampaign,
     executor: Executor,
@@ -121,7 +135,7 @@ def leave_one_out(
     """
     family, sign = campaign.family, campaign.family.direction
     config, mu_r, baseline = full["config"], full["mu_r"], family.baseline_config
-    root, cid = campaign.step_dir(STEP), full["config_id"]
+    cid = full["config_id"]
 
     def probe(names: list[str], stage: int) -> tuple[list[TrialRow], dict[int, TrialRow]]:
         # Each reversion is followed by the full configuration at its seed, so that a stopped
@@ -133,15 +147,7 @@ def leave_one_out(
             if paired and seed not in full_at:
                 full_at[seed] = len(trials)
                 trials.append(Trial(f"full-{cid}-s{seed}", config, seed))
-        rows = run_trials(
-            family,
-            trials,
-            executor,
-            root / "prune.jsonl",
-            root,
-            campaign.timeout,
-            time_budget=campaign.time_budget,
-        )
+        rows = _run_trials(campaign, trials, executor)
         reverted = [row for row in rows if row.key.startswith("loo-")]
         return reverted, {seed: rows[i] for seed, i in full_at.items()}
 
@@ -266,17 +272,9 @@ def prune(
         return part
 
     pruned_config = {**full["config"], **{name: family.baseline_config[name] for name in dropped}}
-    cid, root = config_id(pruned_config), campaign.step_dir(STEP)
+    cid = config_id(pruned_config)
     trials = [Trial(f"prune-{cid}-s{seed}", pruned_config, seed) for seed in part["reverify_seeds"]]
-    rows = run_trials(
-        family,
-        trials,
-        executor,
-        root / "prune.jsonl",
-        root,
-        campaign.timeout,
-        time_budget=campaign.time_budget,
-    )
+    rows = _run_trials(campaign, trials, executor)
     # The gate verification used (an audit.json written before it had one: the paper's).
     gate = verified.get("gate", tails.PAPER)
     assessed = assess(rows, None, noise, sign, split, family.tail_fields, gate)

@@ -152,13 +152,8 @@ def run_random_arm(
         CampaignMeta.new(family, PROPOSER, settings).write(arm.root)
     # A best-of-N: every draw runs, whatever the target, the plateau or a run of failures says.
     budgets = Budgets(max_iters=count, max_failures=count + 1, plateau_window=count + 1)
-    loop = LoopSettings(
-        PROPOSER,
-        budgets,
-        timeout_per_run=campaign.timeout,
-        workers=executor.workers,
-        time_budget=campaign.time_budget,
-    )
+    limits = {"timeout_per_run": campaign.timeout, "time_budget": campaign.time_budget}
+    loop = LoopSettings(PROPOSER, budgets, workers=executor.workers, **limits)
     proposer = RandomProposer(registry, seed, space="random-range")
     view = PlainView(family.metric)
     Orchestrator(family, proposer, arm.root, loop, view=view, executor=executor).run()

@@ -16,7 +16,14 @@ from pathlib import Path
 from typing import Any
 
 from autoresearch import provenance
-from autoresearch.campaign import Campaign, CampaignError, CampaignMeta, CampaignPaths, portable_path
+from autoresearch.campaign import (
+    Campaign,
+    CampaignError,
+    CampaignMeta,
+    CampaignPaths,
+    CampaignState,
+    portable_path,
+)
 from autoresearch.campaign.lock import CampaignLock
 from autoresearch.campaign.meta import EVAL_ALLOWANCE
 from autoresearch.execution.executors import Executor, ExecutorError, LocalExecutor
@@ -265,22 +272,16 @@ def run(
     return 0
 
 
-def _target_report(state) -> str:
+def _target_report(state: CampaignState) -> str:
     """Whether, and when, the campaign's best reached the family's target: a report line, not a stop
     (unless ``--stop-at-target``)."""
-    first = next(
-        (
-            r
-            for r in state.records
-            if r.ran
-            and r.best_so_far is not None
-            and reaches_target(r.best_so_far, state.family.target, state.family.direction)
-        ),
-        None,
-    )
-    if first is None:
+    family = state.family
+    reached = [
+        r for r in state.records if r.ran and reaches_target(r.best_so_far, family.target, family.direction)
+    ]
+    if not reached:
         return "not reached"
-    return f"first reached at iteration {first.iteration} ({first.run_id})"
+    return f"first reached at iteration {reached[0].iteration} ({reached[0].run_id})"
 
 
 def resume(root: str | Path) -> int:
