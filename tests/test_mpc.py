@@ -113,7 +113,7 @@ def test_mpc_on_the_nominal_model_flies_the_open_loop_expert(task, rendezvous_st
     expert_energy, _ = control_effort(expert_thrust, problem)
     np.testing.assert_allclose(energy, expert_energy, rtol=energy_tol)
     assert flight.terminal_distance.max() < 1e-5
-    assert mpc.fallbacks.sum() == 0
+    assert mpc.fallbacks.sum() == mpc.infeasible.sum() and mpc.soft.sum() == 0  # each on its previous plan
     assert len(mpc.solve_seconds) == mpc.solves.sum() == len(starts) * (problem.horizon - 1)  # m >= 2
     if task == "docking":
         assert flight.violation_rate.max() == 0.0
@@ -129,19 +129,29 @@ def test_mpc_keeps_every_constraint_of_constrained_docking_on_a_handful_of_start
     assert flight.min_clearance.min() >= 0.0
 
 
-def test_a_failed_resolve_is_counted_and_replanned_by_the_soft_expert():
-    """A start no box thrust can bring home: every hard re-solve fails and the soft-terminal expert
-    re-plans instead (as close as the box allows), which the counters say."""
+def test_a_failed_resolve_flies_the_previous_plan_or_the_soft_expert_as_asked():
+    """A start no box thrust can bring home: every hard re-solve fails. The controller's default
+    re-plans with the soft-terminal expert where it has no plan yet, then flies that plan; asked for
+    the soft expert (DAgger's labels), it re-plans softly from every state. The counters say which."""
     problem = RendezvousProblem()
     far = np.array([[400.0, 300.0, 100.0, 0.3, 0.3, 0.1]])
     with pytest.raises(experts.Infeasible):
         experts.solve_rendezvous(far[0], problem)
-    mpc = RecedingHorizon(problem)
-    flight = fly(problem, mpc, far)
-    assert mpc.infeasible[0] == mpc.soft[0] == mpc.solves[0] == problem.horizon - 1
-    assert mpc.fallbacks[0] == 0
     _, soft = experts.solve_rendezvous_soft(far[0], problem)
+    steps = problem.horizon - 1  # solves: the last step is the law's
+    planned = RecedingHorizon(problem)
+    flight = fly(problem, planned, far)
+    assert planned.infeasible[0] == planned.solves[0] == steps
+    assert planned.soft[0] == 1 and planned.fallbacks[0] == steps - 1
+    np.testing.assert_allclose(
+        flight.thrust[0, :steps], soft[:steps], atol=1e-6
+    )  # the first soft plan, flown
+    relabelling = RecedingHorizon(problem, on_failure="soft")
+    flight = fly(problem, relabelling, far)
+    assert relabelling.infeasible[0] == relabelling.soft[0] == steps and relabelling.fallbacks[0] == 0
     np.testing.assert_allclose(flight.thrust[0, 0], soft[0], atol=1e-6)  # float32 observation
+    with pytest.raises(ValueError, match="on_failure"):
+        RecedingHorizon(problem, on_failure="pray")
 
 
 def test_the_soft_terminal_experts_equal_the_hard_ones_where_both_answer(rendezvous_starts, docking_starts):

@@ -432,7 +432,7 @@ def relabel(flight: Flight, expert_at: DockingProblem = PROBLEM) -> tuple[np.nda
     start's previous label; the soft expert (every constraint and the terminal state as penalties)
     where the hard one cannot answer, and at the last step the closed-form law's one-step control.
     ``expert_at``: the problem the expert solves (EXPERT_MARGIN's standoff)."""
-    expert = RecedingHorizon(expert_at)
+    expert = RecedingHorizon(expert_at, on_failure="soft")  # a label answers from this very state
     horizon = PROBLEM.horizon
     obs = [
         docking_observation(flight.states[:, k], flight.goals, k, horizon, dtype=np.float64)

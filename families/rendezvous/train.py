@@ -374,7 +374,7 @@ def relabel(flight: Flight) -> tuple[np.ndarray, np.ndarray, dict]:
     gets the first control of the expert re-solved over the steps left, warm-started from the same
     start's previous label; the soft-terminal expert where the hard one cannot answer, and at the
     last step the closed-form law's one-step control (no thrust moves the final position)."""
-    expert = RecedingHorizon(PROBLEM)
+    expert = RecedingHorizon(PROBLEM, on_failure="soft")  # a label answers from this very state
     horizon = PROBLEM.horizon
     obs = [rendezvous_observation(flight.states[:, k], k, horizon, dtype=np.float64) for k in range(horizon)]
     thrust = [expert(o) * PROBLEM.u_max for o in obs]
