@@ -9,7 +9,8 @@ data lives in the ledger, which the audit alone writes (docs/audit.md):
   "seed_noise": {mean, std, k, seeds, values, n_feasible, metric, measured_at, runs_dir, failed,
                  pinned: {baseline, files}, test: {mean, std, k, values, n_feasible}},
   "promotions": [{config, metric, std, n, split, by_split: {search: ..., test: ...},
-                  source: {campaign, run_id, step}, distilled?: {...}, remeasured?: "..."}, ...]
+                  source: {campaign, run_id, step}, distilled?: {...}, remeasured?: "...",
+                  pruned_from?: config_id, dropped?: [...]}, ...]
 }
 ```
 

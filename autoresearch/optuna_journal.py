@@ -57,7 +57,7 @@ class OptunaJournal:
         meta = campaign.meta()
         identity = f"{meta.family_name}, {meta.proposer}, created {meta.created}"
         try:
-            storage = JournalStorage(JournalFileBackend(str(Path(path))))
+            self.storage = storage = JournalStorage(JournalFileBackend(str(Path(path))))
             name = _study_name(storage, path, campaign.root.name, meta.created, identity, family)
             self.study = optuna.create_study(
                 storage=storage, study_name=name, direction=family.direction.study, load_if_exists=True
@@ -89,13 +89,14 @@ class OptunaJournal:
             "hypothesis": record.hypothesis,
             "axes": annotation.get("axes"),
             "verdict": record.verdict,
+            "verdict_noise": record.verdict_noise,
             "feasible": record.feasible,
             "reason": record.reason,
         }
         trial = optuna.trial.create_trial(
             state=_STATES[record.status],
             value=record.metric if record.ran else None,
-            params=self.family.space.validate_full(record.config),
+            params=self.family.space.validate_full(self.family.completed(record.config)),
             distributions=self.distributions,
             user_attrs={k: v for k, v in attrs.items() if v is not None},
             intermediate_values={point["step"]: point["value"] for point in record.progress or ()},
@@ -114,6 +115,42 @@ class OptunaJournal:
     def sync(self, records: list[Record]) -> int:
         """Add every record not yet in the study; how many were added."""
         return sum(self.add(record) for record in sorted(records, key=lambda r: r.iteration))
+
+    def record_audit(self, outcome: dict[str, Any], runs: list[dict[str, Any]]) -> int:
+        """The audit's outcome on the campaign's study, so the dashboard shows what was certified
+        beside the one-seed trials: study user attributes ``audit_*`` (verdict, certified metric and
+        its sd, n, split, margin in units of seed noise, configuration, the step that certified it);
+        and every reseeded run (``runs``, autoresearch.audit.outcome.reseeded_runs) a trial of the
+        study ``<study> (reseeded)``, its value the metric on the gated split. Idempotent; returns
+        how many reseeded runs were added."""
+        for key in ("verdict", "metric", "sigma_r", "n", "split", "margin_sigma", "config_id", "step"):
+            self.study.set_user_attr(f"audit_{key}", outcome[key])
+        name = f"{self.study.study_name} (reseeded)"
+        reseeded = optuna.create_study(
+            storage=self.storage, study_name=name, direction=self.family.direction.study, load_if_exists=True
+        )
+        reseeded.set_user_attr(CAMPAIGN_ATTR, self.study.user_attrs.get(CAMPAIGN_ATTR))
+        reseeded.set_user_attr("metric", f"{self.family.metric} ({outcome['split']} split)")
+        done = {trial.user_attrs.get("run_id") for trial in reseeded.get_trials(deepcopy=False)}
+        added = 0
+        for run in runs:
+            if run["run_id"] in done:
+                continue
+            ran = run["status"] == "ok" and run["metric"] is not None
+            attrs = {
+                k: run[k] for k in ("step", "config_id", "promoted", "split", "seed", "run_id", "excluded")
+            }
+            reseeded.add_trial(
+                optuna.trial.create_trial(
+                    state=TrialState.COMPLETE if ran else TrialState.FAIL,
+                    value=run["metric"] if ran else None,
+                    params=self.family.space.validate_full(run["config"]),
+                    distributions=self.distributions,
+                    user_attrs={k: v for k, v in attrs.items() if v is not None},
+                )
+            )
+            added += 1
+        return added
 
 
 def _study_name(

@@ -63,6 +63,19 @@ def verdict(metric: float, prior_best: float, direction: int, sigma: float | Non
     return WITHIN_NOISE
 
 
+def judged_against(seed_noise: dict | None, prior_best: float) -> dict:
+    """The noise unit a run's Eq. perrun verdict was judged against, as its record names it: the
+    measured seed noise (its sigma, K and when it was measured), or, with none measured yet, 5 % of
+    the prior best (``measured_at`` null). A later verdict against newer noise may differ."""
+    if seed_noise:
+        return {
+            "sigma": seed_noise["std"],
+            "k": seed_noise.get("k"),
+            "measured_at": seed_noise.get("measured_at"),
+        }
+    return {"sigma": noise_threshold(prior_best, None), "k": None, "measured_at": None}
+
+
 def run_verdict(
     metric: float, *, feasible: bool, is_baseline: bool, prior_best: float | None, direction: int, sigma
 ) -> str:

@@ -31,23 +31,22 @@ echo "[main] audit: seed noise if the family has none, reseeded verification, pr
 autoresearch audit --campaign "$campaign" --noise-seeds "${SEEDS:-3}" --top 1 --seeds "${SEEDS:-3}" \
   --count "${COUNT:-4}" --workers 2
 python - "$campaign" <<'EOF'
-import json, sys
+import sys
 from pathlib import Path
 
+from autoresearch.audit.inputs import open_campaign
+from autoresearch.audit.report import headline
+from autoresearch.campaign.audit_log import read_audit
+
 root = Path(sys.argv[1])
-audit = json.loads((root / "audit.json").read_text())
-verify, prune = audit["verify"], audit.get("prune") or {}
+audit = read_audit(root)
 figures = ", ".join(sorted(p.name for p in root.glob("*.png")))
 print(f"[main] report: {root / 'report.md'} (figures beside it: {figures})")
-split = verify.get("split", "search")
-for c in verify["candidates"]:
-    margin = f", m = {c['margin']:.2f} sigma" if c.get("margin") is not None else ""
-    mean = f"{c['mu_r']:.4g} +- {c['sigma_r']:.2g} (n={c['n']})" if c.get("sigma_r") is not None else "-"
-    search = (c.get("by_split") or {}).get("search") or {}
-    gap = f"; search split {search['mu_r']:.4g}" if split == "test" and search.get("mu_r") is not None else ""
-    print(f"[main] headline: candidate {c['config_id']} reseeded on the {split} split {mean}{gap}{margin}: {c['reason']}")
-if not verify["candidates"]:
-    print(f"[main] headline: {verify['reason']}")
+# What the audit promoted (the pruned recipe where it beat the full one): what policy.onnx holds
+print(f"[main] headline: {headline(open_campaign(root, read_only=True), audit)}")
+prune = audit.get("prune") or {}
 print(f"[main] pruning: {prune.get('reason') or prune.get('status')}")
+if (root / "policy.onnx").exists():
+    print(f"[main] exported: {root / 'policy.onnx'}, the promoted policy")
 EOF
 echo "[main] wall time: $((SECONDS - start)) s"

@@ -67,11 +67,13 @@ def test_verify_promotes_the_reproducible_candidate_not_the_single_seed_best(sce
         assert c["margin"] == pytest.approx((1.8 - c["mu_r"]) / SIGMA)
         assert c["ci_low"] < c["diff"] < c["ci_high"]
     assert candidates[p1w]["sigma_r"] == pytest.approx(10 * SIGMA)
-    assert verified["promoted"] == p1
+    assert verified["promoted"] == p1 and verified["family_best"]["updated"]
+    (promotion,) = [e for e in Family.load(family.path).ledger.promotions if e["source"]["step"] == "verify"]
+    assert promotion["config"] == full(family, P1) and promotion["n"] == 4
+    assert promotion["metric"] == pytest.approx(candidates[p1]["mu_r"])
+    # family.json: the configuration and its certified number (pruning's promotion since); the rest is the
+    # ledger's
     best = family_best(family.path)
-    assert best["config"] == full(family, P1) and best["n"] == 4
-    assert best["metric"] == pytest.approx(candidates[p1]["mu_r"])
-    # family.json: the configuration and its certified number; the rest is the ledger's
     assert read_json(family.path / "family.json")["best"] == {
         "config": best["config"],
         "metric": best["metric"],
@@ -98,13 +100,28 @@ def test_prune_decides_every_case_of_eq_loodecision(scenario_a):
     assert pruned["dropped"] == ["HITCH", "DAGGER"] and pruned["flagged"] == ["DAGGER"]
 
 
-def test_pruned_recipe_is_published_beside_the_family_best(scenario_a):
-    family, _, _, pruned = scenario_a
-    assert pruned["published"] and pruned["pruned"]["passed"]
+def test_a_published_pruned_recipe_more_reproducible_than_the_full_one_is_promoted(scenario_a):
+    """Dropping DAGGER (an edit that costs 2 sigma) makes the pruned recipe the better and the more
+    reproducible one: it is promoted in the full configuration's place (issue 39, item 2)."""
+    family, _, verified, pruned = scenario_a
+    assert pruned["published"] and pruned["pruned"]["passed"] and pruned["promotes_pruned"]
+    recipe = full(family, {**P1, "HITCH": "a", "DAGGER": 0})
     best = family_best(family.path)
-    assert best["config"] == full(family, P1)  # the family best stays the full configuration
-    assert best["distilled"]["config"] == full(family, {**P1, "HITCH": "a", "DAGGER": 0})
-    assert best["distilled"]["dropped"] == ["HITCH", "DAGGER"]
+    assert best["config"] == recipe and best["metric"] == pruned["pruned"]["mu_r"]
+    assert best["source"]["step"] == "prune" and best["pruned_from"] == verified["promoted"]
+    assert best["dropped"] == ["HITCH", "DAGGER"] and "distilled" not in best
+
+
+def test_a_published_pruned_recipe_no_more_reproducible_is_recorded_beside_the_full_one(tmp_path):
+    """Dropping only a hitchhiker gives the same reseeded mean and spread: the full configuration
+    stays the family best (the paper's docking case) and the recipe is its distilled one."""
+    hitch = {**P1, "DAGGER": 0}  # DAGGER's harm reverted by hand: HITCH alone is left to drop
+    family, _, _, pruned = audited(tmp_path, [hitch], top=1)
+    assert pruned["dropped"] == ["HITCH"] and pruned["published"] and not pruned["promotes_pruned"]
+    best = family_best(family.path)
+    assert best["config"] == full(family, hitch) and best["source"]["step"] == "verify"
+    assert best["distilled"]["config"] == full(family, {**hitch, "HITCH": "a"})
+    assert best["distilled"]["dropped"] == ["HITCH"]
 
 
 def test_every_step_uses_fresh_disjoint_seeds(scenario_a):

@@ -153,3 +153,50 @@ def test_two_campaigns_of_one_name_are_two_studies_never_merged(tmp_path):
         )
         == 2
     )
+
+
+def test_an_audited_campaign_shows_its_certified_result_in_the_dashboard(tmp_path):
+    """Issue 39, item 7: after an audit the live journal (and any export) carry what was certified:
+    the audit's verdict, certified metric, split and margin as study user attributes, and every
+    reseeded run as a trial of '<study> (reseeded)'."""
+    toy, campaign, journal = copy_toy(tmp_path), tmp_path / "c", tmp_path / "live.log"
+    cli = [sys.executable, "-m", "autoresearch"]
+    loop = [*cli, "loop", "--family", str(toy), "--proposer", "random", "--max-iters", "4", "--seed", "3"]
+    done = subprocess.run([*loop, "--campaign", str(campaign), "--plain", "--optuna-journal", str(journal)])
+    assert done.returncode == 0
+    audit = [*cli, "audit", "--campaign", str(campaign), "--noise-seeds", "3", "--seeds", "3", "--top", "2"]
+    done = subprocess.run([*audit, "--count", "2"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "[optuna-journal] audit: " in done.stdout
+    audited = json.loads((campaign / "audit.json").read_text())
+    verify, prune = audited["verify"], audited["prune"]
+    # what the audit promoted: the pruned recipe when pruning promoted it, else verify's candidate
+    promoted = (
+        prune["pruned"]
+        if prune.get("promotes_pruned")
+        else next(c for c in verify["candidates"] if c["config_id"] == verify["promoted"])
+    )
+    attrs = load(journal, "c").user_attrs
+    assert attrs["audit_verdict"] == "PASS" and attrs["audit_split"] == "search"
+    assert attrs["audit_metric"] == promoted["mu_r"] and attrs["audit_margin_sigma"] == promoted["margin"]
+    assert attrs["audit_config_id"] == promoted["config_id"] and attrs["audit_n"] == 3
+    reseeded = load(journal, "c (reseeded)")
+    runs = [
+        r
+        for c in [*verify["candidates"], *([prune["pruned"]] if prune.get("pruned") else [])]
+        for r in c["reseeds"]
+    ]
+    assert sorted(t.user_attrs["run_id"] for t in reseeded.trials) == sorted(r["run_id"] for r in runs)
+    assert sorted(t.value for t in reseeded.trials if t.user_attrs["promoted"]) == sorted(
+        r["metric"] for r in promoted["reseeds"]
+    )
+    # An export after the fact writes the same into a fresh journal, and adds nothing the second time.
+    fresh = tmp_path / "fresh.log"
+    for added in (f"({len(runs)} added)", "(0 added)"):
+        done = subprocess.run(
+            [*cli, "export", "--campaign", str(campaign), "--optuna-journal", str(fresh)],
+            capture_output=True,
+            text=True,
+        )
+        assert done.returncode == 0 and added in done.stdout, done.stdout + done.stderr
+    assert load(fresh, "c").user_attrs["audit_metric"] == promoted["mu_r"]

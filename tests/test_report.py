@@ -59,8 +59,40 @@ def test_report_has_the_audit_table_in_the_papers_shape(audited):
         assert row in text
     assert "95% Welch CI [" in text and "It is not the single-seed best" in text
     assert "| DAGGER | optimizer | 0 → 1 | +2.87 | +2.00 | drop† |" in text
-    # The full recipe (1.297) missed the toy target (1.1), so the pruned one had none to keep.
-    assert "clears the gate and has no target to keep (the full recipe did not reach it either)" in text
+    # The full recipe (1.297) missed the toy target (1.1), so the pruned one had none to lose.
+    assert "clears the gate and loses no target (the full recipe did not reach the family's either)" in text
+
+
+def test_the_report_speaks_in_words(audited):
+    """Issue 39, item 3: no field names, code words or paper equation labels a reader cannot look up."""
+    _, root, _, _ = audited
+    text = (root / "report.md").read_text()
+    assert "a run counts as feasible only when its `feasible` is true" in text and "field `None`" not in text
+    assert "target 1.1;" in text and "has no target to keep" not in text and "Eq. reseedgate" not in text
+    assert 'The gate (docs/audit.md, "Reseeded verification"): a configuration passes when' in text
+    assert "A pruned recipe is *published* when its own re-verification passes the same gate" in text
+
+
+def test_the_headline_is_what_the_audit_promoted_and_the_export_its_policy(audited):
+    """Issue 39, item 2: the pruned recipe (without HITCH and DAGGER, the edit that hurt) is more
+    reproducible than the full one: the audit promotes it, the headline says so, the family best is
+    it, and the exported policy is its own saved run."""
+    family, root, _, _ = audited
+    audit = read_audit(root)
+    pruned = audit["prune"]["pruned"]
+    assert audit["prune"]["promotes_pruned"] and audit["prune"]["family_best"]["updated"]
+    assert "so it is promoted in place of the full configuration" in audit["prune"]["reason"]
+    best = Family.load(family.path).best
+    assert best == {"config": pruned["config"], "metric": pruned["mu_r"]}
+    text = (root / "report.md").read_text()
+    assert (
+        f"**Headline**: the pruned recipe {pruned['config_id']} (EPOCHS=60, SAFE=True, BORDER=1.0, GAP=1.0) "
+        f"reseeded on the search split {pruned['mu_r']:.4g} ± {pruned['sigma_r']:.2g} (n=4), "
+        f"m = {pruned['margin']:.1f}σ: PASS, promoted." in text
+    )
+    assert "| Pruned recipe, reseeded (n=4) |" in text and "σ, published, promoted |" in text
+    exported = json.loads((root / "policy.onnx").read_text())["exported"]
+    assert exported == pruned["config"]  # the promoted policy's own saved run, not the full recipe's
 
 
 def test_report_figures_are_non_trivial_pngs(audited):
@@ -73,10 +105,6 @@ def test_report_figures_are_non_trivial_pngs(audited):
 
 def test_the_promoted_policy_is_exported_beside_the_report_by_the_familys_hook(audited):
     _, root, _, _ = audited
-    exported = json.loads((root / "policy.onnx").read_text())["exported"]
-    promoted = read_audit(root)["verify"]["promoted"]
-    candidate = next(c for c in read_audit(root)["verify"]["candidates"] if c["config_id"] == promoted)
-    assert exported == candidate["config"]  # the promoted policy's own saved run, not another
     assert "[policy.onnx](policy.onnx)" in (root / "report.md").read_text()
 
 
@@ -89,9 +117,7 @@ def test_a_clone_without_the_saved_policy_keeps_its_figure_or_says_why(audited, 
     (clone / "trajectories.png").unlink()
     assert main(["report", "--campaign", str(clone)]) == 0
     text = (clone / "report.md").read_text()
-    assert (
-        "No family figure: the promoted policy's saved run (" in text and "re-run verify to plot it" in text
-    )
+    assert "No family figure: the promoted policy's saved run (" in text and "re-run prune to plot it" in text
     assert not (clone / "trajectories.png").exists()
     (clone / "policy.onnx").unlink()
     assert main(["report", "--campaign", str(clone)]) == 0

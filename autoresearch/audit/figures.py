@@ -15,6 +15,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from autoresearch.audit.inputs import AuditedCampaign
+from autoresearch.audit.outcome import promoted
 from autoresearch.campaign import Campaign, Record, portable_path
 from autoresearch.execution.runner import family_env
 from autoresearch.family import Family
@@ -135,19 +136,19 @@ def recipe_figure(records: list[Record], family: Family, out: Path) -> None:
     fig.savefig(out, dpi=110)
 
 
-def promoted_policy(campaign: AuditedCampaign, verify: dict[str, Any] | None) -> Path | str:
-    """The saved policy directory of the promoted configuration's first valid reseed, or why none."""
-    promoted = next(
-        (c for c in (verify or {}).get("candidates", []) if c["config_id"] == verify["promoted"]), None
-    )
-    if promoted is None:
+def promoted_policy(campaign: AuditedCampaign, audit: dict[str, Any]) -> tuple[str, Path] | str:
+    """The step and the saved policy directory of the promoted configuration's first valid reseed, or
+    why there is none."""
+    found = promoted(audit)
+    if found is None:
         return "no promoted configuration to"
-    run = next((r for r in promoted["reseeds"] if r["excluded"] is None), None)
-    return campaign.step_dir("verify") / run["run_id"] / "out"
+    step, entry = found
+    run = next((r for r in entry["reseeds"] if r["excluded"] is None), None)
+    return step, campaign.step_dir(step) / run["run_id"] / "out"
 
 
 def family_hook(
-    campaign: AuditedCampaign, verify: dict[str, Any] | None, out: Path, hook: str = "report.py"
+    campaign: AuditedCampaign, audit: dict[str, Any], out: Path, hook: str = "report.py"
 ) -> str | None:
     """Run one of the family's optional hooks on the promoted configuration's saved policy, writing
     ``out``: report.py (``--out``, its domain figure) or export.py (``--onnx``, the policy as a file
@@ -156,13 +157,14 @@ def family_hook(
     verb = "export" if hook == "export.py" else "plot"
     if not (family.path / hook).is_file():
         return f"the family has no {hook} {'export' if verb == 'export' else 'plotting'} hook"
-    policy = promoted_policy(campaign, verify)
-    if isinstance(policy, str):
-        return f"{policy} {verb}"
+    found = promoted_policy(campaign, audit)
+    if isinstance(found, str):
+        return f"{found} {verb}"
+    step, policy = found
     if not policy.is_dir():  # verification runs are not committed: a clone keeps the output, not the weights
         if out.exists():
             return None
-        return f"the promoted policy's saved run ({portable_path(policy)}) is not here; re-run verify to {verb} it"
+        return f"the promoted policy's saved run ({portable_path(policy)}) is not here; re-run {step} to {verb} it"
     flag = "--onnx" if hook == "export.py" else "--out"
     cmd = [sys.executable, hook, "--policy", str(policy), flag, str(out.resolve())]
     try:

@@ -16,6 +16,10 @@ audit.json key beside the paper's:
 Dropped edits are then reverted together and the pruned recipe is re-verified at fresh seeds: it
 is published only if it clears the same gate (against the baseline noise) and keeps the target.
 Otherwise the full configuration stands and the dropped group is reported as mattering jointly.
+A published recipe that also ranks above the full configuration by verification's promotion rule
+(the better pessimistic end of its reseeded mean's 95 % interval) is promoted in its place: it
+becomes the family best, and the report's figures and exported policy are its. Otherwise it is
+recorded beside the full configuration as its distilled recipe. The rule that runs last decides.
 
 Every probe and re-verification is scored on the split verification gated on (the sealed test
 split, where the family has one): the decisions, the re-verification gate and the published recipe
@@ -37,9 +41,11 @@ from autoresearch.audit import stats, tails
 from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
-from autoresearch.audit.verify import assess, is_this_campaign
+from autoresearch.audit.verify import STEP as VERIFY_STEP
+from autoresearch.audit.verify import assess, is_this_campaign, promote
 from autoresearch.campaign.audit_log import TrialRow, read_audit, write_step
 from autoresearch.execution.executors import Executor
+from autoresearch.journal import read_json
 from autoresearch.ledger import Ledger
 from autoresearch.splits import Split
 from autoresearch.verdicts import reaches_target
@@ -284,16 +290,28 @@ def prune(
         publish, retained = stats.prune_publish(
             pruned["passed"], pruned["mu_r"], full["mu_r"], family.target, sign
         )
-    part.update(pruned=pruned, published=publish, target_retained=retained)
+    promotes = publish and (pruned["bound"], sign * pruned["mu_r"]) > (full["bound"], sign * full["mu_r"])
+    part.update(pruned=pruned, published=publish, target_retained=retained, promotes_pruned=promotes)
     if publish:
-        kept = (
-            "keeps the target"
-            if reaches_target(full["mu_r"], family.target, sign)
-            else "has no target to keep (the full recipe did not reach it either)"
-        )
+        if reaches_target(full["mu_r"], family.target, sign):
+            kept = "keeps the target the full recipe reached"
+        elif family.target is None:
+            kept = "loses no target (the family sets none)"
+        else:
+            kept = "loses no target (the full recipe did not reach the family's either)"
         part["reason"] = f"the pruned recipe (without {', '.join(dropped)}) clears the gate and {kept}"
+    if promotes:
+        part["reason"] += (
+            "; it is also the more reproducible of the two (the better end of its reseeded mean's 95% "
+            "interval), so it is promoted in place of the full configuration"
+        )
+        candidate = {**pruned, "source": full["source"]}
+        part["family_best"] = promote(
+            campaign, candidate, rule.key, pruned_from=full["config_id"], dropped=dropped
+        )
+    if publish and not promotes:
         _attach_distilled(campaign, full, pruned, dropped, rule)
-    else:
+    if not publish:
         lost = pruned["reason"] if not pruned["passed"] else "it loses the target the full recipe reached"
         part["reason"] = (
             f"the dropped group {', '.join(dropped)} matters jointly: the pruned recipe fails re-verification "
@@ -304,8 +322,24 @@ def prune(
 
 
 def _finish(campaign: AuditedCampaign, rule: Rule, part: dict[str, Any]) -> None:
+    if not part.get("promotes_pruned"):
+        _restore_full(campaign)
     write_step(campaign.root, rule.key, part)
     write_step(campaign.root, DECIDED_BY, {"key": rule.key, "rule": rule.name})
+
+
+def _restore_full(campaign: AuditedCampaign) -> None:
+    """The rule that runs last decides: a pruned recipe an earlier rule promoted from this campaign
+    gives way to verification's promoted configuration again when this rule does not promote its own."""
+    registry = read_json(campaign.family.path / "family.json")  # as it is now, after verify's write
+    best = Ledger.read(campaign.family.path, registry).current(registry.get("best")) or {}
+    source = best.get("source") or {}
+    verified = read_audit(campaign.root).get("verify") or {}
+    promoted = next(
+        (c for c in verified.get("candidates", []) if c["config_id"] == verified.get("promoted")), None
+    )
+    if promoted and is_this_campaign(source, campaign) and source.get("step") != VERIFY_STEP:
+        promote(campaign, promoted)
 
 
 def _attach_distilled(

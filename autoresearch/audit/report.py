@@ -22,12 +22,14 @@ from autoresearch.audit.figures import (
     search_figure,
 )
 from autoresearch.audit.inputs import AuditedCampaign, open_campaign
+from autoresearch.audit.outcome import certified
 from autoresearch.audit.prune import DECIDED_BY, RULES
+from autoresearch.audit.prune import STEP as PRUNE_STEP
 from autoresearch.audit.tails import OUTLIER_UNITS, PAPER, RUNAWAY
 from autoresearch.campaign import portable_path
 from autoresearch.campaign.audit_log import read_audit
 from autoresearch.family import Family
-from autoresearch.verdicts import best_feasible
+from autoresearch.verdicts import CONFIRMED, REGRESSED, WITHIN_NOISE, best_feasible
 
 
 def _fmt(x: float | None, digits: int = 4) -> str:
@@ -130,7 +132,7 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
             "not gated",
         )
     verify = audit.get("verify") or {}
-    shown = _promoted(verify) or next((c for c in verify.get("candidates", []) if "mu_r" in c), None)
+    shown = _shown(verify)
     if shown:
         verdict = "PASS" if shown["passed"] else "FAIL"
         gated = f"**{_fmt(shown['mu_r'])} ± {_fmt(shown['sigma_r'], 2)}**"
@@ -144,7 +146,11 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
         part = audit.get(rule.key) or {}
         pruned = part.get("pruned")
         if pruned and "mu_r" in pruned:
-            verdict = "published" if part["published"] else "not published"
+            verdict = (
+                ("published, promoted" if part.get("promotes_pruned") else "published")
+                if part["published"]
+                else "not published"
+            )
             which = "" if rule.key == "prune" else f" ({rule.name} rule)"
             gated = f"{_fmt(pruned['mu_r'])} ± {_fmt(pruned['sigma_r'], 2)}"
             row(
@@ -154,6 +160,83 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
                 f"{pruned['margin']:.1f}σ, {verdict}",
             )
     return rows
+
+
+def headline(campaign: AuditedCampaign, audit: dict[str, Any]) -> str:
+    """The audit's outcome in one sentence: what it promoted (the configuration the figures and the
+    exported policy show), certified on which split, by how many noise units."""
+    verify = audit.get("verify") or {}
+    if not verify:
+        return "not audited yet (`autoresearch audit --campaign DIR`)"
+    outcome = certified(audit)
+    if outcome is None:
+        return f"nothing promoted: {verify.get('reason')}"
+    what = "the pruned recipe" if outcome["step"] == PRUNE_STEP else "candidate"
+    text = (
+        f"{what} {outcome['config_id']} ({_changes(outcome['config'], campaign.family)}) reseeded on the "
+        f"{outcome['split']} split {_mean_sd(outcome['metric'], outcome['sigma_r'], outcome['n'])}, "
+        f"m = {outcome['margin_sigma']:.1f}σ: {outcome['verdict']}"
+    )
+    search = outcome["by_split"].get("search") or {}
+    if outcome["split"] == "test" and search.get("mu_r") is not None:
+        text += f" (search split {_fmt(search['mu_r'])})"
+    if not outcome["promoted"]:
+        tried = next(c for c in verify["candidates"] if c["config_id"] == outcome["config_id"])
+        return f"nothing promoted: {text} ({tried['reason']})"
+    # where the promotion was written: the deciding prune rule's part, or verification's
+    part = (
+        audit.get((audit.get(DECIDED_BY) or {}).get("key", PRUNE_STEP))
+        if outcome["step"] == PRUNE_STEP
+        else verify
+    )
+    best = (part or {}).get("family_best")
+    text += ", promoted"
+    if isinstance(best, dict) and not best.get("updated", True):
+        text += f"; the family's best is unchanged: {best.get('why')}"
+    return text
+
+
+def mismatch_note(campaign: AuditedCampaign, audit: dict[str, Any]) -> str | None:
+    """A sentence when the single-seed best and the reseeded row are different configurations."""
+    verify = audit.get("verify") or {}
+    single, shown = verify.get("single_seed_best"), _shown(verify)
+    if not single or not shown or single["config_id"] == shown["config_id"]:
+        return None
+    return (
+        f"The single-seed best ({single['config_id']}, run {single['run_id']}) and the reseeded row "
+        f"({shown['config_id']}) are different configurations: reseeding revised which one is best "
+        '(docs/audit.md, "How to read the report").'
+    )
+
+
+def verdict_note(arms: list[PlottedArm], noise: dict[str, Any] | None) -> str | None:
+    """A sentence when run verdicts were judged against other noise than the audit's: a verdict is a
+    single-seed judgement in the noise unit of its day (its record names it), so one judged before
+    the seed noise was measured can differ from a later verdict of the same configuration."""
+    measured = (noise or {}).get("measured_at")
+    if not measured:
+        return None
+    counts = []
+    for arm in arms:
+        judged = [r for r in arm.ran if r.verdict in (CONFIRMED, REGRESSED, WITHIN_NOISE)]
+        older = sum((r.verdict_noise or {}).get("measured_at") != measured for r in judged)
+        if older:
+            counts.append(f"{older} of {len(judged)} in {arm.label}")
+    if not counts:
+        return None
+    return (
+        f"Run verdicts judged before the seed noise this audit used was measured ({measured}), against 5% "
+        f"of the best or an older measurement: {'; '.join(counts)}. Each record names the noise its verdict "
+        "was judged against (`verdict_noise`); the same configuration judged against this noise may get "
+        'another verdict (docs/audit.md, "How to read the report").'
+    )
+
+
+def _feasibility(family: Family) -> str:
+    field = family.feasibility_field
+    if field is None:
+        return "every run counts as feasible (the family declares no feasibility field)"
+    return f"a run counts as feasible only when its `{field}` is true"
 
 
 def split_note(audit: dict[str, Any]) -> str:
@@ -181,6 +264,11 @@ def split_note(audit: dict[str, Any]) -> str:
 
 def _promoted(verify: dict[str, Any]) -> dict[str, Any] | None:
     return next((c for c in verify.get("candidates", []) if c["config_id"] == verify.get("promoted")), None)
+
+
+def _shown(verify: dict[str, Any]) -> dict[str, Any] | None:
+    """The candidate the table's reseeded row shows: the promoted one, else the first reseeded."""
+    return _promoted(verify) or next((c for c in verify.get("candidates", []) if "mu_r" in c), None)
 
 
 def _changes(config: dict[str, Any], family: Family) -> str:
@@ -392,26 +480,34 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
     noise = audit.get("noise") or family.seed_noise
     search_figure([agent, *random_arms(audit), *extra], family, noise, out_dir / "search.png")
     recipe_figure(campaign.records, family, out_dir / "recipe.png")
-    hook_note = family_hook(campaign, audit.get("verify"), out_dir / "trajectories.png")
+    hook_note = family_hook(campaign, audit, out_dir / "trajectories.png")
     exported = None
     if (family.path / "export.py").is_file():  # the optional export hook: the audited policy as a file
-        exported = family_hook(campaign, audit.get("verify"), out_dir / "policy.onnx", hook="export.py")
+        exported = family_hook(campaign, audit, out_dir / "policy.onnx", hook="export.py")
     better = "lower" if family.direction < 0 else "higher"
     n_runs = sum(r.status.started_a_run for r in campaign.records)
     lines = [
         f"# Audit report: {campaign.root.name}",
         "",
         f"Family **{family.name}** ({portable_path(family.path)}); metric `{family.metric}` ({better} is better); "
-        f"target {family.target}; feasibility field `{family.feasibility_field}`. "
+        f"{'no target' if family.target is None else f'target {family.target:g}'}; {_feasibility(family)}. "
         f"Campaign proposer: {campaign.meta.proposer}, {n_runs} experiments. "
         "How to read this report: docs/audit.md.",
+        "",
+        f"**Headline**: {headline(campaign, audit)}.",
         "",
         "## Audit table",
         "",
         *audit_table(campaign, audit, extra),
         "",
         "The reseeded mean is the headline number; the single-seed best is shown for traceability. "
-        "The gate (paper Eq. reseedgate): m = σ_dir(μ_R − μ_0)/σ ≥ 2 and feasible on every reseed.",
+        'The gate (docs/audit.md, "Reseeded verification"): a configuration passes when its reseeded mean '
+        "beats the baseline's by m = σ_dir(μ_R − μ_0)/σ ≥ 2 units of the seed noise σ and it is feasible on "
+        "every reseed. A pruned recipe is *published* when its own re-verification passes the same gate and "
+        "it keeps any target the full recipe reached, and *promoted* in the full recipe's place when it is "
+        'also the more reproducible of the two (docs/audit.md, "Leave-one-out pruning").',
+        *(["", note] if (note := mismatch_note(campaign, audit)) else []),
+        *(["", note] if (note := verdict_note([agent, *random_arms(audit)], noise)) else []),
         "",
         split_note(audit),
         "",

@@ -211,10 +211,14 @@ def _replaces_family_best(
     )
 
 
-def promote(campaign: AuditedCampaign, candidate: dict[str, Any]) -> dict[str, Any]:
+def promote(
+    campaign: AuditedCampaign, candidate: dict[str, Any], step: str = STEP, **extra: Any
+) -> dict[str, Any]:
     """Write ``candidate`` as the family best if it replaces the one family.json holds when written
     (decided under the file's lock: a concurrent audit of another campaign cannot be overwritten
-    with a worse best). Returns {"updated", "why"}."""
+    with a worse best). ``step`` names the audit step that certified it (verify, or a prune rule's
+    re-verification of a pruned recipe, whose ``extra`` fields say what it was pruned from).
+    Returns {"updated", "why"}."""
     family = campaign.family
 
     def decide(registry: dict[str, Any], old: Ledger) -> tuple[Ledger, dict[str, Any]]:
@@ -231,8 +235,9 @@ def promote(campaign: AuditedCampaign, candidate: dict[str, Any]) -> dict[str, A
                 "source": {
                     "campaign": campaign_ref(campaign),
                     "run_id": candidate["source"]["run_id"],
-                    "step": STEP,
+                    "step": step,
                 },
+                **extra,
             }
             registry["best"], old = best_of(entry), old.promoted(entry)
         return old, {"updated": write, "why": why}

@@ -85,6 +85,8 @@ class Record:
     feasible: bool | None = None
     final_metric: dict[str, Any] | None = None
     verdict: str | None = None
+    # the noise the verdict was judged against (verdicts.judged_against): {sigma, k, measured_at}
+    verdict_noise: dict[str, Any] | None = None
     best_so_far: float | None = None
     cost_usd: float | None = None
     input_tokens: int | None = None

@@ -30,7 +30,7 @@ from autoresearch.journal import (
     repair_torn_tail,
     write_json_atomic,
 )
-from autoresearch.verdicts import run_verdict
+from autoresearch.verdicts import CONFIRMED, REGRESSED, WITHIN_NOISE, judged_against, run_verdict
 
 INTENT = "intent.json"
 INTERRUPTED = "interrupted.json"
@@ -220,12 +220,14 @@ class CampaignWriter:
                 sigma=family.sigma,
             )
             cut = result.final_metric.get("budget_exhausted")
+            judged = verdict in (CONFIRMED, REGRESSED, WITHIN_NOISE)  # a comparison in noise units
             fields.update(
                 status=Status.RAN,
                 metric=result.metric,
                 feasible=feasible,
                 final_metric=result.final_metric,
                 verdict=verdict,
+                verdict_noise=judged_against(family.seed_noise, state.best_metric) if judged else None,
                 best_so_far=state.best_after(result.metric, feasible),
                 budget_exhausted=cut if isinstance(cut, bool) else None,
             )

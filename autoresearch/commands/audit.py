@@ -20,6 +20,7 @@ from autoresearch.commands.common import (
     positive_int,
     run_command,
 )
+from autoresearch.commands.export import update_live_journal
 from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import add_gate_argument, print_verify
@@ -103,5 +104,8 @@ def run(args: argparse.Namespace) -> int:
                 )
             )
         print(f"[report] {write_report(Path(args.campaign), arms=args.arm)}")
+        journal = update_live_journal(Path(args.campaign))
+        if journal:
+            print(f"[optuna-journal] {journal}")
 
     return run_command("audit", args, body)

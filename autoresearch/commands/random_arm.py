@@ -43,6 +43,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+def _number(value: float | None) -> str:
+    """A metric at the precision the other lines print it, not Python's 17 digits."""
+    return "n/a" if value is None else f"{value:.6g}"
+
+
 def print_random(part: dict) -> None:
     best = part["best"]
     best_text = f"{best['metric']:.6g} ({best['run_id']})" if best else "none feasible"
@@ -55,8 +60,9 @@ def print_random(part: dict) -> None:
     print(f"  verdict{on}: {part['verdict'] or part.get('verdict_note')}{units}")
     for side, judged in (part.get("judged") or {}).items():
         print(
-            f"  {side} best {judged['config_id']} re-run at the default seed: test split {judged['test_metric']}, "
-            f"search split {judged['search_metric']} (recorded {judged['recorded_search_metric']}, "
+            f"  {side} best {judged['config_id']} re-run at the default seed: test split "
+            f"{_number(judged['test_metric'])}, search split {_number(judged['search_metric'])} (recorded "
+            f"{_number(judged['recorded_search_metric'])}, "
             f"{'reproduced' if judged['reproduced'] else 'NOT reproduced'})"
         )
 

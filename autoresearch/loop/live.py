@@ -37,6 +37,16 @@ def _number(value: Any) -> str:
     return "-" if value is None else f"{value:.5g}"
 
 
+def _verdict(record: Record) -> str:
+    """The run's verdict and the noise it was judged against (a later one may judge it otherwise)."""
+    noise = record.verdict_noise
+    if not noise:
+        return str(record.verdict)
+    if noise.get("measured_at"):
+        return f"{record.verdict}, against seed noise σ {noise['sigma']:.3g}"
+    return f"{record.verdict}, against 5% of the best ({noise['sigma']:.3g}): no seed noise measured yet"
+
+
 def _outcome(record: Record) -> str:
     """Status column: what happened, with the run id when something ran."""
     if record.ran:
@@ -94,9 +104,11 @@ class PlainView(View):
             )
 
     def record(self, record: Record, closest: str) -> None:
-        head = f"[it {record.iteration}] {record.proposer}: {_outcome(record)}"
+        # The loop's own stop took the next iteration number but is no experiment: not numbered.
+        where = "[stop]" if record.status is Status.STOPPED else f"[it {record.iteration}]"
+        head = f"{where} {record.proposer}: {_outcome(record)}"
         if record.ran:
-            body = f"{self.metric}={_number(record.metric)} ({record.verdict})"
+            body = f"{self.metric}={_number(record.metric)} ({_verdict(record)})"
         else:
             body = record.reason or ""
         tail = f"best={_number(record.best_so_far)} spend=${record.cumulative_cost_usd:.4f} | {closest}"
