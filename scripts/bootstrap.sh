@@ -14,14 +14,18 @@ if [ ! -x "$venv/bin/python" ]; then
   "$python" -m venv "$venv"
 fi
 pip="$venv/bin/python -m pip"
+# pip runs at its normal verbosity: on a fresh machine the two installs take minutes (torch alone is
+# hundreds of MB), and its lines (Collecting, Downloading, Installing) are the progress to watch.
 if ! "$venv/bin/python" -c "import torch" 2>/dev/null; then
-  echo "[setup] installing ${TORCH_SPEC:-torch==2.13.0} first${TORCH_INDEX_URL:+ from $TORCH_INDEX_URL}"
-  $pip install -q ${TORCH_INDEX_URL:+--index-url "$TORCH_INDEX_URL"} "${TORCH_SPEC:-torch==2.13.0}"
+  echo "[setup] installing ${TORCH_SPEC:-torch==2.13.0} first${TORCH_INDEX_URL:+ from $TORCH_INDEX_URL}:" \
+    "a download of hundreds of MB, a few minutes on a fresh machine; pip's progress follows"
+  $pip install ${TORCH_INDEX_URL:+--index-url "$TORCH_INDEX_URL"} "${TORCH_SPEC:-torch==2.13.0}"
 fi
 stamp="$venv/.cwh-installed"
 if [ ! -f "$stamp" ] || [ "$root/pyproject.toml" -nt "$stamp" ]; then
-  echo "[setup] installing cwh-autoresearch and its dependencies"
-  $pip install -q -e "$root[${EXTRAS:-all,dev}]"
+  echo "[setup] installing cwh-autoresearch and its dependencies (about a minute); pip's progress follows"
+  $pip install -e "$root[${EXTRAS:-all,dev}]"
   touch "$stamp"
 fi
+echo "[setup] ready: $venv"
 export PATH="$venv/bin:$PATH"

@@ -18,7 +18,7 @@ from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
-from autoresearch.proposers.random_search import RandomProposer
+from autoresearch.proposers.random_search import ARM_STREAM, RandomProposer
 
 S = 0.01
 SIGMA = S * math.sqrt(4 / 3)  # four alternating +-S noise values
@@ -202,9 +202,10 @@ def test_random_arm_matches_the_loop_and_resumes(tmp_path):
     assert [r["status"] for r in records] == ["ran"] * 6 + ["stopped"]
     records = sorted(records[:6], key=lambda r: r["iteration"])
     assert records[0]["proposer"] == "baseline" and records[0]["config"] == family.baseline_config
-    # The same draws the loop makes with the random proposer (the shared first iteration included).
+    # The same draws the loop makes with the random proposer on the arm's own stream (the shared first
+    # iteration included), never a random campaign's at the same seed (tests/test_first_hour.py).
     loop_dir = tmp_path / "loop-random"
-    proposer = RandomProposer(Family.load(family.path).registry, seed=0)
+    proposer = RandomProposer(Family.load(family.path).registry, seed=0, stream=ARM_STREAM)
     budgets = Budgets(max_iters=6, plateau_window=10**6)
     Orchestrator(Family.load(family.path), proposer, loop_dir, LoopSettings("random", budgets)).run()
     loop = [r for r in read_jsonl(loop_dir / "proposals.jsonl") if r["status"] == "ran"]

@@ -53,11 +53,13 @@ def random_arms(audit: dict[str, Any]) -> list[PlottedArm]:
     return arms
 
 
-def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] | None, out: Path) -> None:
-    """Per-experiment metric (filled: feasible, hollow: infeasible) and each arm's running best."""
-    fig = Figure(figsize=(8, 4.5))
+def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] | None, out: Path) -> Figure:
+    """Per-experiment metric (filled: feasible, hollow: infeasible) and each arm's running best, on
+    the search split, one seed each; the x-axis spans the experiments (a stop record is none) and
+    the legend sits beside the plot, never over the data. Returns the figure it saved."""
+    fig = Figure(figsize=(10.5, 4.5))
     ax = fig.add_subplot()
-    values = []
+    values, last = [], 1
     for arm in arms:
         ran = arm.ran
         values += [r.metric for r in ran]
@@ -72,7 +74,9 @@ def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] 
                 edgecolors=arm.color,
                 label=f"{arm.label}: {'feasible' if feasible else 'infeasible'} runs" if pts else None,
             )
-        trace = [(r.iteration, r.best_so_far) for r in arm.records if r.best_so_far is not None]
+        started = [r for r in arm.records if r.status.started_a_run]
+        last = max([last, *(r.iteration for r in started)])
+        trace = [(r.iteration, r.best_so_far) for r in started if r.best_so_far is not None]
         if trace:
             ax.step(
                 *zip(*trace, strict=True),
@@ -91,12 +95,16 @@ def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] 
         ax.set_yscale("log")
     better = "lower" if family.direction < 0 else "higher"
     ax.set(
-        xlabel="experiment", ylabel=f"{family.metric} ({better} is better)", title="Search: every experiment"
+        xlabel="experiment",
+        ylabel=f"{family.metric} ({better} is better)",
+        title="Search: every experiment, one seed each, on the search split",
+        xlim=(0.5, last + 0.5),
     )
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
+    return fig
 
 
 def recipe_figure(records: list[Record], family: Family, out: Path) -> None:

@@ -35,7 +35,7 @@ from autoresearch.execution.executors import Executor
 from autoresearch.loop.live import PlainView
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
 from autoresearch.loop.stopping import Budgets
-from autoresearch.proposers.random_search import RandomProposer
+from autoresearch.proposers.random_search import ARM_STREAM, RandomProposer
 from autoresearch.space import NUMERIC_TYPES
 from autoresearch.splits import Split
 from autoresearch.verdicts import ranking
@@ -154,7 +154,7 @@ def run_random_arm(
     budgets = Budgets(max_iters=count, max_failures=count + 1, plateau_window=count + 1)
     limits = {"timeout_per_run": campaign.timeout, "time_budget": campaign.time_budget}
     loop = LoopSettings(PROPOSER, budgets, workers=executor.workers, **limits)
-    proposer = RandomProposer(registry, seed, space="random-range")
+    proposer = RandomProposer(registry, seed, space="random-range", stream=ARM_STREAM)
     view = PlainView(family.metric)
     Orchestrator(family, proposer, arm.root, loop, view=view, executor=executor).run()
     state = arm.state(family)

@@ -18,7 +18,7 @@ from typing import Any
 
 from autoresearch.campaign.meta import CampaignMeta, portable_path
 from autoresearch.campaign.paths import CampaignPaths
-from autoresearch.family import Family
+from autoresearch.family import Family, resolve_family
 from autoresearch.journal import read_json, write_json_atomic
 
 GROUP_FILE = "repeats.json"
@@ -63,6 +63,15 @@ class GroupMeta:
     @classmethod
     def read(cls, root: str | Path) -> GroupMeta:
         return cls(**read_json(Path(root) / GROUP_FILE))
+
+    def open_family(self, root: str | Path) -> Family:
+        """The group's family, from any working directory: as its first repeat's campaign.json finds
+        it (beside the campaign, wherever the group is resumed from), else where repeats.json says
+        (relative to the working directory the group was started in)."""
+        repeats = repeat_dirs(root)
+        if repeats:
+            return CampaignMeta.read(repeats[0]).open_family(repeats[0])
+        return resolve_family(self.family)
 
     def write(self, root: str | Path) -> None:
         write_json_atomic(Path(root) / GROUP_FILE, asdict(self))

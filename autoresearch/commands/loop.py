@@ -266,7 +266,7 @@ def _run_repeats(args: argparse.Namespace) -> int:
         saved = GroupMeta.read(args.campaign) if args.campaign and is_group(args.campaign) else None
         if not (args.family or saved):
             raise UsageError("--family is required (a name under families/ or a directory)")
-        family = resolve_family(args.family or saved.family)
+        family = resolve_family(args.family) if args.family else saved.open_family(args.campaign)
         proposer = args.proposer or (saved and saved.proposer) or default_proposer()
         root = _campaign_dir(args, family, proposer)
         # The group's --workers run whole campaigns side by side, each loop on this machine running one

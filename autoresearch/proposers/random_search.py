@@ -28,21 +28,32 @@ def full_config_proposal(
     )
 
 
+CAMPAIGN_STREAM = "random-search"  # a `loop --proposer random` campaign's draws
+ARM_STREAM = "audit-random-arm"  # the audit's random arm: never a campaign's draws at the same seed
+
+
 class RandomProposer(Proposer):
     """Samples a full configuration each turn, skipping configurations already run.
 
-    Iteration ``i`` draws from its own stream seeded by (seed, i), so a resumed campaign draws
-    exactly what an uninterrupted one would have.
+    Iteration ``i`` draws from its own stream seeded by (``stream``, seed, i), so a resumed campaign
+    draws exactly what an uninterrupted one would have, and the audit's random arm (its own
+    ``stream``) never repeats the draws of a random campaign run at the same seed.
     """
 
     name = "random"
 
-    def __init__(self, registry: dict[str, Any], seed: int = 0, space: str = "random-range"):
+    def __init__(
+        self,
+        registry: dict[str, Any],
+        seed: int = 0,
+        space: str = "random-range",
+        stream: str = CAMPAIGN_STREAM,
+    ):
         self.space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"])).searched(space)
-        self.seed = seed
+        self.seed, self.stream = seed, stream
 
     def propose(self, context: ProposerContext) -> Proposal:
-        rng = random.Random(f"random-search:{self.seed}:{context.iteration}")
+        rng = random.Random(f"{self.stream}:{self.seed}:{context.iteration}")
         seen = seen_configs(context)
         for _ in range(MAX_DRAWS):
             config = self.space.sample(rng)
