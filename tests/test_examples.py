@@ -175,6 +175,17 @@ def test_sb3_compare_smoke(tmp_path, bc_policies):
 
 
 @pytest.mark.slow
+@pytest.mark.needs("sb3")
+def test_a_smoke_run_never_overwrites_the_committed_results(tmp_path):
+    """Issue 39, item 8: without --out a smoke run writes runs/sb3_compare_smoke, never results/."""
+    smallest = ["--algos", "ppo", "--problems", "rendezvous", "--eval-points", 1]
+    stdout = run("sb3_compare.py", "--smoke", *smallest, cwd=tmp_path)
+    assert "wrote runs/sb3_compare_smoke/results.md" in stdout
+    assert (tmp_path / "runs" / "sb3_compare_smoke" / "results.json").is_file()
+    assert not (tmp_path / "results").exists()
+
+
+@pytest.mark.slow
 def test_sb3_compare_learns_the_same_on_the_native_adapter_and_on_dummy_vec_env(tmp_path, bc_policies):
     """Same seeds, same start pool: the adapter and DummyVecEnv give SB3 identical transitions, so
     PPO and SAC end with identical policies, to the last bit of the family metric."""
