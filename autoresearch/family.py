@@ -160,6 +160,11 @@ class Family:
             return None
         return {str(name): float(v) for name, v in values.items()}
 
+    def completed(self, config: dict[str, Any]) -> dict[str, Any]:
+        """An earlier run's configuration with every parameter the search space has gained since at
+        its baseline value (the family contract: a new parameter's default keeps the old behaviour)."""
+        return {**self.baseline_config, **config}
+
     @property
     def protocols(self) -> tuple[str, ...]:
         """The protocols family.json declares (``protocols``): named restrictions of its search space."""

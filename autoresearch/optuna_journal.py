@@ -144,7 +144,7 @@ class OptunaJournal:
                 optuna.trial.create_trial(
                     state=TrialState.COMPLETE if ran else TrialState.FAIL,
                     value=run["metric"] if ran else None,
-                    params=self.family.space.validate_full(run["config"]),
+                    params=self.family.space.validate_full(self.family.completed(run["config"])),
                     distributions=self.distributions,
                     user_attrs={k: v for k, v in attrs.items() if v is not None},
                 )

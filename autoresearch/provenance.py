@@ -86,6 +86,25 @@ def family_hashes(family_dir: Path) -> dict[str, str | None]:
     return hashes
 
 
+def family_hash_as_seen(family_dir: Path, seen: dict[str, Any]) -> str | None:
+    """family.json's hash (as :func:`family_hashes`) as a campaign that was shown the registry
+    ``seen`` recorded it: the top-level fields, parameters and axes the family declared since left
+    out, and the baseline restricted to the parameters seen. It equals the recorded hash exactly
+    when the family only grew (new parameters, which every earlier run held at their baseline
+    value; new fields such as ``protocols``); None when family.json does not read."""
+    try:
+        registry = json.loads((family_dir / "family.json").read_bytes())
+        space, axes = seen["search_space"], seen["axes"]
+        kept = {k: v for k, v in registry.items() if k not in AUDIT_WRITES + AUDIT_READS and k in seen}
+        kept["search_space"] = {k: v for k, v in registry["search_space"].items() if k in space}
+        kept["axes"] = [axis for axis in registry["axes"] if axis in axes]
+        baseline = registry["baseline"]
+        kept["baseline"] = {**baseline, "config": {k: v for k, v in baseline["config"].items() if k in space}}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    return hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()[:16]
+
+
 def git_state(directory: Path, status: bool = True) -> dict[str, Any] | None:
     """{"commit", "dirty"} of the git repository holding ``directory``, or None outside one; without
     ``status``, ``dirty`` is None (not asked)."""

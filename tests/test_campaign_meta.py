@@ -111,3 +111,40 @@ def test_a_malformed_campaign_json_names_what_is_wrong(tmp_path, data, message, 
     (tmp_path / "proposals.jsonl").write_text("")
     main(["check", "--campaign", str(tmp_path)])
     assert "campaign.json" in capsys.readouterr().out
+
+
+def grow(family_dir, name="WARMUP", axis="optimizer", spec_change=None):
+    """The toy family with one new parameter (its default in train.py and the baseline), or with an
+    existing parameter's bounds changed."""
+    registry = json.loads((family_dir / "family.json").read_text())
+    if spec_change:
+        registry["search_space"]["EPOCHS"]["high"] = spec_change
+    else:
+        registry["axes"].append("algorithm")
+        registry["search_space"][name] = {"type": "int", "low": 0, "high": 3, "axis": "algorithm"}
+        registry["baseline"]["config"][name] = 0
+        registry["protocols"] = {"before": {"exclude_axes": ["algorithm"]}}
+        source = (family_dir / "train.py").read_text()
+        source = source.replace("EPOCHS = 10", f"EPOCHS = 10\n{name} = 0  # a lever the family gained", 1)
+        (family_dir / "train.py").write_text(source)
+    (family_dir / "family.json").write_text(json.dumps(registry, indent=2))
+
+
+def test_a_family_that_only_grew_is_the_same_family_to_its_campaigns(tmp_path, monkeypatch):
+    """New parameters (held at their baseline by every earlier run) and new fields keep a campaign
+    readable and auditable; a changed bound of a parameter it searched does not."""
+    monkeypatch.chdir(tmp_path)
+    toy = copy_toy(tmp_path)
+    assert (
+        main(["loop", "--family", str(toy), "--proposer", "random", "--max-iters", "2", "--campaign", "c"])
+        == 0
+    )
+    grow(toy)
+    meta = CampaignMeta.read(tmp_path / "c")
+    family = meta.open_family(tmp_path / "c")
+    assert "WARMUP" in family.space.names
+    assert family.completed({"EPOCHS": 3})["WARMUP"] == 0
+    assert main(["check", "--campaign", "c"]) == 0
+    grow(toy, spec_change=59)
+    with pytest.raises(CampaignError, match="search space changed"):
+        meta.open_family(tmp_path / "c")

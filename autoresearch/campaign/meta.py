@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 from dataclasses import asdict, dataclass, replace
@@ -86,13 +87,20 @@ class CampaignMeta:
         *before, current = self.sessions
         return replace(self, sessions=(*before, {**current, key: value}))
 
-    def check_family(self, family: Family) -> None:
+    def check_family(self, family: Family, root: str | Path | None = None) -> None:
         """Refuse a family other than the one this campaign ran: another name, or a family.json whose
-        problem or search space differs from the recorded one (CampaignError naming both)."""
+        problem or search space differs from the recorded one (CampaignError naming both). A family
+        that only grew since (new parameters held at their baseline value by every earlier run, new
+        fields) is the same one: judged against the registry the campaign in ``root`` was shown."""
         if family.name != self.family_name:
             raise CampaignError(f"this campaign is of family {self.family_name!r}, not {family.name!r}")
         recorded = ((self.provenance or {}).get("family_files") or {}).get("family.json")
         found = provenance.family_hashes(family.path)["family.json"]
+        if recorded and found != recorded and root is not None:
+            seen = CampaignPaths(Path(root)).family_json
+            shown = json.loads(seen.read_text(encoding="utf-8")) if seen.is_file() else None
+            if isinstance(shown, dict) and provenance.family_hash_as_seen(family.path, shown) == recorded:
+                return
         if recorded and found != recorded:
             raise CampaignError(
                 f"{family.path / 'family.json'} is not the family.json this campaign ran (sha256 {found}, "
@@ -123,7 +131,7 @@ class CampaignMeta:
                 f"{tried}; the {self.family_name!r} family it ran); pass --family DIR where it is now"
             )
         family = Family.load(path)
-        self.check_family(family)
+        self.check_family(family, root)
         return family.under_protocol(self.settings.get("protocol"))
 
     @property

@@ -128,7 +128,7 @@ def resumed(
     if proposer and proposer != meta.proposer:
         raise UsageError(f"this campaign's proposer is {meta.proposer}; a campaign cannot change it")
     family = family or meta.open_family(root)
-    meta.check_family(family)  # refused before any provenance is listed
+    meta.check_family(family, root)  # refused before any provenance is listed
     recorded = [("campaign.json, first session", meta.provenance)]
     for line in provenance.report(recorded, provenance.collect(family.path), strict):
         print(f"[provenance] {line}", file=sys.stderr)

@@ -137,7 +137,7 @@ def _matched(
         return None, "no configuration", False
     if set(config) - set(space.names):
         return None, "sets a parameter the space no longer has", False
-    filled = {**family.baseline_config, **config}
+    filled = family.completed(config)
     try:
         full = space.validate_full(filled)
     except ValidationError:
