@@ -30,6 +30,7 @@ from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
 from autoresearch.campaign import CampaignMeta
 from autoresearch.campaign.audit_log import StepLog, read_audit
+from autoresearch.commands.random_arm import print_random
 from autoresearch.execution.executors import LocalExecutor
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
@@ -124,6 +125,15 @@ def test_the_random_arm_is_a_search_and_both_bests_are_judged_on_the_test_split(
     arm_dir = root.parent / f"{root.name}-random"
     for name in ("proposals.jsonl", "runs.jsonl", "campaign.json"):
         assert leaks((arm_dir / name).read_text()) == [], name  # the arm's directory stays sealed
+
+
+def test_the_random_arms_console_lines_print_numbers_at_their_precision(sealed, capsys):
+    """Issue 39, item 3: a raw 1.857285765346452 in the console."""
+    print_random(sealed[4])
+    shown = capsys.readouterr().out
+    judged = sealed[4]["judged"]["agent"]
+    assert f"test split {judged['test_metric']:.6g}, search split {judged['search_metric']:.6g}" in shown
+    assert not re.search(r"\d\.\d{7,}", shown)
 
 
 def test_the_report_shows_both_splits_and_says_which_decided(sealed):
