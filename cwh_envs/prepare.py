@@ -73,10 +73,6 @@ def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
     """
     task, problem, seed = needs.task, needs.problem, needs.data_seed
 
-    def pool(build):
-        demos = datasets.demonstrations(task, needs.pool_demos, seed=seed, problem=problem, build=build)
-        return demos.starts, demos.goals, demos
-
     def split(name, n):
         def held_out(build):
             demos = datasets.evaluation_set(task, n, problem=problem, split=name, build=build)
