@@ -273,11 +273,15 @@ _POOLS: dict[tuple[str, str], StartPool] = {}  # (cache key, cache directory) ->
 _POOLS_KEPT = 8
 
 
+MAX_POOL = 1 << 20  # ~1M starts: 48 MB of states and minutes to screen; 10**12 would never finish
+
+
 def check_pool_size(n) -> int:
     """``n`` as the size of a start pool, or a ``ValueError`` that says what a size must be."""
-    if not (isinstance(n, int | np.integer) and not isinstance(n, bool) and n >= 1):
+    if not (isinstance(n, int | np.integer) and not isinstance(n, bool) and 1 <= n <= MAX_POOL):
         raise ValueError(
-            f"start_pool must be None or a positive integer (the number of pooled starts), got {n!r}"
+            "start_pool must be None or an integer from 1 to "
+            f"{MAX_POOL} (the number of pooled starts), got {n!r}"
         )
     return int(n)
 
@@ -494,18 +498,27 @@ def _check_seed(seed) -> None:
 
 
 class _Progress:
-    """A compact progress bar on stderr: redrawn in place on a terminal, one summary line otherwise."""
+    """A compact progress bar on stderr: redrawn in place on a terminal; off one (a log file), a line
+    every ``LINE_EVERY`` seconds with the count and the time left at the rate so far, so that a long
+    build is seen to move."""
+
+    LINE_EVERY = 30.0
 
     def __init__(self, label: str, total: int):
         self.label, self.total, self.started = label, total, time.perf_counter()
         self.live = sys.stderr.isatty()
-        self.drawn = 0.0
+        self.drawn = 0.0 if self.live else self.started
 
     def update(self, done: int) -> None:
         now = time.perf_counter()
         if self.live and (now - self.drawn > 0.1 or done == self.total):
             filled = int(24 * done / self.total)
             sys.stderr.write(f"\r{self.label} [{'#' * filled}{'.' * (24 - filled)}] {done}/{self.total}")
+            sys.stderr.flush()
+            self.drawn = now
+        elif not self.live and 0 < done < self.total and now - self.drawn >= self.LINE_EVERY:
+            left = (now - self.started) * (self.total - done) / done
+            sys.stderr.write(f"{self.label}: {done}/{self.total} built, about {left:.0f} s left\n")
             sys.stderr.flush()
             self.drawn = now
 

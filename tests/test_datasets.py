@@ -197,3 +197,14 @@ def test_build_false_reads_the_cache_and_never_builds(tmp_path):
     built = demonstrations("rendezvous", 4, seed=0, cache_dir=tmp_path)
     cached = demonstrations("rendezvous", 4, seed=0, cache_dir=tmp_path, build=False)
     np.testing.assert_array_equal(built.observations, cached.observations)
+
+
+def test_a_build_off_a_terminal_prints_a_progress_line_now_and_then(tmp_path, monkeypatch, capsys):
+    """A log file sees the count and the time left while a set builds, not only when it is done."""
+    from cwh_envs import datasets
+
+    monkeypatch.setattr(datasets._Progress, "LINE_EVERY", 0.0)
+    demonstrations("docking", 3, seed=0, cache_dir=tmp_path)
+    lines = capsys.readouterr().err.splitlines()
+    assert [line for line in lines if "/3 built, about" in line and " s left" in line]
+    assert lines[-1].startswith("docking demonstrations: 3 built in")

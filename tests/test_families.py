@@ -108,8 +108,14 @@ def test_prepare_check_names_what_is_missing_then_passes_once_warm(name, tmp_pat
     assert all(part in cold.stderr for part in ("training pool", "search split", "test split", "missing"))
     assert ("recovery pool" in cold.stderr) == (name == "docking")
     assert not cache.exists() or not any(cache.iterdir()), "--check must not build anything"
-    run(family / "prepare.py", "--warm-cache", cache=cache, check=True)
+    built = run(family / "prepare.py", "--warm-cache", cache=cache, check=True)
+    # what it will build and about how long, said before it starts (issue 39, item 15)
+    sets = len(cold.stderr.splitlines()) - 2
+    assert re.search(rf"^to build: {sets} of {sets} data sets, about \d+ (s|min) in all:$", built.stdout, re.M)
+    assert built.stdout.index("to build:") < built.stdout.index("ready:")
     assert run(family / "prepare.py", "--check", cache=cache, check=True).returncode == 0
+    again = run(family / "prepare.py", "--warm-cache", cache=cache, check=True)
+    assert "to build" not in again.stdout
 
 
 @pytest.mark.slow

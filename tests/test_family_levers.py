@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
+from extras import needs_module
 from test_families import family_copy, final_metric, run
 
 from cwh_envs import experts
@@ -21,6 +21,8 @@ from cwh_envs.controllers import MinEnergyFeedback, pd_action
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.prepare import DataNeeds, load_train, required_sets
 from cwh_envs.rollout import fly
+
+torch = needs_module("torch", "families")
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking", "docking-constrained")

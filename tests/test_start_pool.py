@@ -176,3 +176,16 @@ def test_bad_pool_and_autoreset_arguments(kwargs, match):
     if "start_pool" in kwargs:
         with pytest.raises(ValueError, match=match):
             gym.make("CWHDockKOZ-v0", **kwargs)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_a_pool_beyond_the_bound_is_refused_before_anything_is_built(env_id, tmp_path, monkeypatch):
+    """start_pool=10**12 used to start screening a trillion starts; now a one-line ValueError."""
+    from cwh_envs.datasets import MAX_POOL
+
+    monkeypatch.setenv("CWH_ENVS_CACHE", str(tmp_path))
+    with pytest.raises(ValueError, match=f"from 1 to {MAX_POOL}"):
+        gym.make(env_id, start_pool=10**12)
+    with pytest.raises(ValueError, match="start_pool"):
+        start_pool(TASKS[env_id], MAX_POOL + 1, cache_dir=tmp_path)
+    assert not list(tmp_path.iterdir())
