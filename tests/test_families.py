@@ -111,7 +111,9 @@ def test_prepare_check_names_what_is_missing_then_passes_once_warm(name, tmp_pat
     built = run(family / "prepare.py", "--warm-cache", cache=cache, check=True)
     # what it will build and about how long, said before it starts (issue 39, item 15)
     sets = len(cold.stderr.splitlines()) - 2
-    assert re.search(rf"^to build: {sets} of {sets} data sets, about \d+ (s|min) in all:$", built.stdout, re.M)
+    assert re.search(
+        rf"^to build: {sets} of {sets} data sets, about \d+ (s|min) in all:$", built.stdout, re.M
+    )
     assert built.stdout.index("to build:") < built.stdout.index("ready:")
     assert run(family / "prepare.py", "--check", cache=cache, check=True).returncode == 0
     again = run(family / "prepare.py", "--warm-cache", cache=cache, check=True)
