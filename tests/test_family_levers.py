@@ -229,3 +229,27 @@ def test_each_expert_margin_has_its_own_pools_and_the_default_is_the_problems(tr
     assert train.expert_problem(defaults(train)) == train.PROBLEM  # the default keeps the old data
     assert train.expert_problem({**defaults(train), "EXPERT_MARGIN": 0.75}).margin == 0.75
     assert "EXPERT_MARGINS" in (ROOT / "families" / "docking" / "prepare.py").read_text()
+
+
+@pytest.mark.parametrize("name", ["rendezvous", "docking"])
+def test_a_budget_spent_before_dagger_keeps_the_first_trainings_loss(tmp_path, name):
+    """A budget the first training uses up leaves no DAgger round: the run is scored as it stands
+    with the first training's loss (it died writing best_train_loss = inf, a lost run)."""
+    family = family_copy(
+        name,
+        tmp_path,
+        N_DEMOS=8,
+        EPOCHS=100000,
+        BATCH_SIZE=16,
+        HIDDEN_DIM=16,
+        N_LAYERS=1,
+        DAGGER_ITERS=2,
+        DAGGER_STARTS=4,
+    )
+    result = run_with(
+        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "1.0"}, "--out", str(tmp_path / "o")
+    )
+    assert result.returncode == 0, result.stderr
+    record = final_metric(result.stdout)
+    assert record["budget_exhausted"] is True and record["dagger"]["rounds"] == 0
+    assert math.isfinite(record["best_train_loss"])

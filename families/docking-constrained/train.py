@@ -395,7 +395,9 @@ def train(
     return policy.eval(), best_loss
 
 
-def dagger(config: dict, policy: Policy, obs, actions, device, generator, report, budget: Budget):
+def dagger(
+    config: dict, policy: Policy, obs, actions, device, generator, report, budget: Budget, best_loss: float
+):
     """DAGGER_ITERS rounds of DAgger after the first training: fly the policy as it is deployed (the
     filter on if RUNTIME_CBF_FILTER) from the first DAGGER_STARTS starts of the training pool,
     relabel every state it visits with the expert over the remaining horizon, add those pairs to the
@@ -406,7 +408,6 @@ def dagger(config: dict, policy: Policy, obs, actions, device, generator, report
     counts = {"rounds": config["DAGGER_ITERS"], "starts": len(starts), "relabelled_states": 0}
     counts |= {"hard_labels": 0, "soft_labels": 0, "fallback_labels": 0, "last_step_law_labels": 0}
     counts["relabel_seconds"] = 0.0
-    best_loss = math.inf
     for round_ in range(1, config["DAGGER_ITERS"] + 1):
         if budget.spent():
             counts["rounds"] = round_ - 1
@@ -587,7 +588,7 @@ def main() -> None:
     n_train_pairs, dagger_counts = len(obs), None
     if config["DAGGER_ITERS"]:
         policy, best_loss, n_train_pairs, dagger_counts = dagger(
-            config, policy, obs, actions, device, generator, report, budget
+            config, policy, obs, actions, device, generator, report, budget, best_loss
         )
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
@@ -603,7 +604,7 @@ def main() -> None:
         **splits[args.eval_split],  # the primary metric on top: the split the run is scored on
         "splits": splits,
         "eval_split": args.eval_split,
-        "best_train_loss": best_loss,
+        "best_train_loss": best_loss if math.isfinite(best_loss) else None,  # None: no epoch ran
         "train_seconds": round(train_seconds, 3),
         "eval_seconds": round(eval_seconds, 3),
         "n_params": sum(p.numel() for p in policy.parameters()),
