@@ -7,6 +7,7 @@ rescales it, and either breaks the exact values asserted here."""
 from __future__ import annotations
 
 import math
+import shutil
 
 import pytest
 from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, family_best, run_campaign
@@ -176,3 +177,15 @@ def test_report_of_a_stopped_rule_says_how_to_resume(p1):
         "Not finished: run `autoresearch prune --campaign DIR --noise-at candidate` again to resume." in text
     )
     assert "| Parameter | paper | paper, noise at the candidate | paired |" in text
+
+
+def test_report_of_a_stopped_verification_says_how_to_resume(p1, tmp_path):
+    """An audit killed mid-verify left audit.json's verify step 'running', with no verdict: the
+    report crashed (KeyError 'reason'); it says the step is unfinished, as for pruning."""
+    _, root, _, _ = p1
+    copy = tmp_path / root.name
+    shutil.copytree(root, copy)
+    verify_step = {k: v for k, v in read_audit(copy)["verify"].items() if k not in ("reason", "promoted")}
+    write_step(copy, "verify", {**verify_step, "status": "running"})
+    text = write_report(copy).read_text()
+    assert "Not finished: run `autoresearch verify --campaign DIR` again to resume." in text

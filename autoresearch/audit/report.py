@@ -283,6 +283,8 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
     family = campaign.family
     if not verify:
         return ["Not run (`autoresearch verify --campaign DIR`)."]
+    if "reason" not in verify:  # stopped mid-step: its rows are partial, as prune's are
+        return ["Not finished: run `autoresearch verify --campaign DIR` again to resume."]
     split = verify.get("split", "search")
     sealed = verify.get("sealed_split", False)
     lines = [f"Fresh seeds {verify.get('seeds')}; {verify['reason']}.", ""]
