@@ -1,0 +1,655 @@
+"""The leaderboard: every controller and every family's promoted policy, flown on the sealed test split.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/leaderboard.py                 # all three tasks
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/leaderboard.py --tasks docking --retime
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/leaderboard.py --starts 16 --out /tmp/lb   # a quick look
+
+For each task (rendezvous, docking, constrained docking) and on the same starts (the family's sealed
+test split, 1024 screened starts), it flies:
+
+- the open-loop expert (the split's own demonstrations), receding-horizon MPC
+  (:class:`cwh_envs.mpc.RecedingHorizon`), the closed-form shrinking-horizon minimum-energy law
+  (:class:`cwh_envs.controllers.MinEnergyFeedback`; through the task's CBF filter on docking) and
+  the PD law (through the filter on docking): nothing learned;
+- behaviour cloning at the family's promoted best (``family.json``) and at the best recipe a
+  key-free agent campaign certified (:data:`AGENT_RECIPES`), each trained by the family's own
+  train.py at every seed of ``--seeds``;
+- SB3 PPO and SAC (examples/sb3_compare.py's hyperparameters and budgets) at the same seeds.
+
+Each row is scored by the family's own metric code (its train.py's ``rendezvous_metrics`` /
+``docking_metrics``) and adds the tail (99th percentile and largest terminal distance over the
+starts), the violation rate of every constraint, Δv and energy over the open-loop expert's from the
+same starts, the compute per step (one start at a time, on this CPU: p50 and p99 in µs, filter
+included; timed in a pass of its own, ``--retime`` alone repeats it), and the success rate under the
+families' fixed dispersion set (the docking families' ``DISPERSIONS``; rendezvous has none of its
+own and flies under the same set). Learned rows give the mean over seeds beside the spread; their
+tail columns pool the starts of every seed (the worst start of any seed is the max).
+
+Trained policies, SB3 models and per-row measurements are cached under ``--work`` (runs/leaderboard,
+never committed), so a re-run only measures what is missing. Writes ``leaderboard.json``,
+``leaderboard.md`` and ``leaderboard_<task>.png`` to ``--out`` (results/). MPC on constrained
+docking re-solves a second-order-cone program at each of 240 steps (~4.6 s a start): it flies the
+first ``MPC_STARTS`` starts of the split (64), which its row says.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from autoresearch.editable import patch
+from cwh_envs.controllers import MinEnergyFeedback, pd_action
+from cwh_envs.core import filter_actions
+from cwh_envs.datasets import evaluation_set
+from cwh_envs.mpc import RecedingHorizon
+from cwh_envs.prepare import load_train
+from cwh_envs.rollout import fly
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = ("rendezvous", "docking", "docking-constrained")
+SB3_PROBLEM = {
+    "rendezvous": "rendezvous",
+    "docking": "docking+cbf",
+    "docking-constrained": "docking-constrained+cbf",
+}
+MPC_STARTS = {"docking-constrained": 64}  # the rest fly every start of the split
+TIMED_STARTS = 8  # starts flown one at a time for the compute column (MPC on constrained docking: 2)
+SUBSET = 16  # deterministic rows also keep their metric on the first SUBSET starts (tests re-measure it)
+# The best recipe a key-free agent campaign certified on each task (the audit's promoted config), as
+# committed; the family's own promoted best is read from its family.json.
+AGENT_RECIPES = {
+    "rendezvous": (
+        "results/evidence/rendezvous-gp (GP, 77 experiments; candidate a390c2fb)",
+        {
+            "N_DEMOS": 573,
+            "EPOCHS": 96,
+            "LEARNING_RATE": 0.0002621822213911771,
+            "BATCH_SIZE": 168,
+            "WEIGHT_DECAY": 0.0021755787660961185,
+            "GRAD_CLIP": 4.693079115265057,
+            "HIDDEN_DIM": 329,
+            "N_LAYERS": 3,
+            "ACTIVATION": "tanh",
+            "DROPOUT": 0.0,
+        },
+    ),
+    "docking": (
+        "results/evidence/docking-gp (GP, graded constraints; pruned to 4 edits, 3b7094da)",
+        {"N_DEMOS": 256, "N_LAYERS": 4, "ACTIVATION": "gelu", "RECOVERY_AUGMENT_FRAC": 0.5},
+    ),
+    "docking-constrained": (
+        "results/docking-constrained/gp (GP, 16 runs; it0012, not strict-feasible)",
+        {
+            "N_DEMOS": 256,
+            "EPOCHS": 120,
+            "LEARNING_RATE": 0.0049999999999999975,
+            "BATCH_SIZE": 256,
+            "WEIGHT_DECAY": 0.0006023133462519599,
+            "GRAD_CLIP": 0.9658987235279884,
+            "HIDDEN_DIM": 128,
+            "N_LAYERS": 4,
+            "ACTIVATION": "gelu",
+            "DROPOUT": 0.0573051372325354,
+            "RUNTIME_CBF_FILTER": True,
+            "RECOVERY_AUGMENT_FRAC": 0.5,
+        },
+    ),
+}
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    parser.add_argument(
+        "--seeds", nargs="+", type=int, default=[1, 2, 3], help="training seeds of learned rows"
+    )
+    parser.add_argument(
+        "--starts",
+        type=int,
+        default=None,
+        help="fly only the first N test starts (the split is nested in N: only those are built)",
+    )
+    parser.add_argument(
+        "--rows", nargs="+", default=None, help="only these controllers (names as in the table)"
+    )
+    parser.add_argument("--retime", action="store_true", help="measure the compute column again (run alone)")
+    parser.add_argument(
+        "--fresh", action="store_true", help="ignore cached measurements (not trained policies)"
+    )
+    parser.add_argument("--work", type=Path, default=ROOT / "runs" / "leaderboard")
+    parser.add_argument("--out", type=Path, default=ROOT / "results")
+    return parser.parse_args(argv)
+
+
+# ------------------------------------------------------------------------------------ the rows
+
+
+@dataclass
+class Task:
+    """One task's family code and sealed test split (the first ``n`` starts)."""
+
+    name: str
+    train: Any  # the family's train.py as a module
+    held_out: Any  # cwh_envs.datasets.Demonstrations
+    dispersions: dict
+
+    @classmethod
+    def load(cls, name: str, n: int | None) -> Task:
+        train = load_train(ROOT / "families" / name)
+        # splits are nested in n: the first n starts of the test split, and only those are built
+        held_out = evaluation_set(train.TASK, n or train.N_TEST, problem=train.PROBLEM, split="test")
+        dispersions = (
+            getattr(train, "DISPERSIONS", None) or load_train(ROOT / "families" / "docking").DISPERSIONS
+        )
+        return cls(name, train, held_out, dispersions)
+
+    @property
+    def problem(self):
+        return self.train.PROBLEM
+
+    @property
+    def docking(self) -> bool:
+        return self.train.TASK == "docking"
+
+    def defaults(self) -> dict:
+        """The family's editable block as it stands."""
+        return {name: getattr(self.train, name) for name in self.train.CONFIG_NAMES}
+
+    def metrics(self, flight) -> dict:
+        expert = self.held_out.trajectory_thrust()[: len(flight.terminal_distance)]
+        if self.docking:
+            return self.train.docking_metrics(flight, expert)
+        return self.train.rendezvous_metrics(flight, expert)
+
+    def fly(self, policy, cbf: bool, starts: int | None = None, dispersed: bool = False):
+        held = self.held_out if starts is None else self.held_out.take(starts)
+        return fly(
+            self.problem,
+            policy,
+            held.starts,
+            held.goals if self.docking else None,
+            cbf_margin=self.problem.margin if cbf else None,
+            dispersions=self.dispersions if dispersed else None,
+            dispersion_seed=getattr(self.train, "DISPERSION_SEED", 0),
+        )
+
+
+@dataclass
+class Entry:
+    """A leaderboard row to measure: ``make(seed)`` returns a policy on observations."""
+
+    name: str
+    kind: str  # "classical", "bc" or "sb3"
+    cbf: bool
+    make: Any
+    source: str
+    config: dict = field(default_factory=dict)
+    starts: int | None = None  # fewer starts than the split (MPC on constrained docking)
+
+
+class OpenLoop:
+    """Replays the split's expert thrust: row i of the batch is start i, the step read from tau."""
+
+    def __init__(self, thrust: np.ndarray, u_max: float):
+        self.actions, self.horizon = thrust / u_max, thrust.shape[1]
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        step = np.rint((1.0 - obs[:, -1].astype(np.float64)) * self.horizon).astype(int)
+        return self.actions[np.arange(len(obs)), step]
+
+
+def entries(task: Task, work: Path, seeds: list[int]) -> list[Entry]:
+    problem, docking = task.problem, task.docking
+    plain = problem.replace(speed_limit=None, approach_cone=None) if docking else problem
+    mpc_starts = MPC_STARTS.get(task.name)
+    rows = [
+        Entry(
+            "open-loop expert",
+            "classical",
+            False,
+            lambda seed: OpenLoop(task.held_out.trajectory_thrust(), problem.u_max),
+            "the split's own demonstrations, replayed",
+        ),
+        Entry(
+            "MPC",
+            "classical",
+            False,
+            lambda seed: RecedingHorizon(problem),
+            "cwh_envs.mpc",
+            starts=mpc_starts,
+        ),
+        Entry(
+            "closed-form feedback" + (" + CBF" if docking else ""),
+            "classical",
+            docking,
+            lambda seed: MinEnergyFeedback(plain),
+            "cwh_envs.controllers.MinEnergyFeedback",
+        ),
+        Entry(
+            "PD" + (" + CBF" if docking else ""),
+            "classical",
+            docking,
+            lambda seed: lambda obs: pd_action(obs, plain),
+            "cwh_envs.controllers.pd_action",
+        ),
+    ]
+    family_json = json.loads((ROOT / "families" / task.name / "family.json").read_text(encoding="utf-8"))
+    best = family_json.get("best")
+    recipes = []
+    if best:
+        recipes.append(("family best (BC)", f"families/{task.name}/family.json best", best["config"]))
+    source, config = AGENT_RECIPES[task.name]
+    recipes.append(("key-free agent best (BC)", source, config))
+    for name, source, config in recipes:
+        cbf = bool({**task.defaults(), **config}.get("RUNTIME_CBF_FILTER", False))
+        rows.append(
+            Entry(
+                name,
+                "bc",
+                cbf,
+                lambda seed, c=config, n=name: trained_bc(task, work, n, c, seed),
+                source,
+                config,
+            )
+        )
+    for algo in ("ppo", "sac"):
+        rows.append(
+            Entry(
+                f"SB3 {algo.upper()}",
+                "sb3",
+                docking,
+                lambda seed, a=algo: trained_sb3(task, work, a, seed),
+                f"examples/sb3_compare.py ({SB3_PROBLEM[task.name]})",
+            )
+        )
+    return rows
+
+
+ROW_ORDER = (
+    "open-loop expert",
+    "MPC",
+    "closed-form feedback",
+    "PD",
+    "family best (BC)",
+    "key-free agent best (BC)",
+    "SB3 PPO",
+    "SB3 SAC",
+)
+
+
+def rank(controller: str) -> int:
+    """A row's place in its task's table (a row measured again keeps its place)."""
+    return ROW_ORDER.index(controller.removesuffix(" + CBF"))
+
+
+def slug(name: str) -> str:
+    return "".join(c if c.isalnum() else "-" for c in name.lower()).strip("-")
+
+
+def trained_bc(task: Task, work: Path, name: str, config: dict, seed: int):
+    """The family's train.py with ``config`` patched into its editable block, trained at ``seed``
+    (once: the policy is kept under ``work``), loaded as a policy on observations."""
+    run = work / task.name / slug(name) / f"s{seed}"
+    saved = run / "policy.pt"
+    if saved.exists():
+        policy, record = task.train.load_policy(saved)
+        if all(record["config"].get(k) == v for k, v in config.items()):
+            return policy.act
+    run.mkdir(parents=True, exist_ok=True)
+    source = (ROOT / "families" / task.name / "train.py").read_text(encoding="utf-8")
+    (run / "train.py").write_text(patch(source, config), encoding="utf-8")
+    print(f"[train] {task.name}: {name} at seed {seed} ...", flush=True)
+    started = time.perf_counter()
+    with open(run / "stdout.txt", "w", encoding="utf-8") as log:
+        subprocess.run(
+            [sys.executable, "train.py", "--seed", str(seed), "--out", ".", "--runs-log", "runs.jsonl"],
+            cwd=run,
+            check=True,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+    print(f"[train] {task.name}: {name} at seed {seed}: {time.perf_counter() - started:.0f} s", flush=True)
+    return task.train.load_policy(saved)[0].act
+
+
+def _sb3_compare():
+    spec = importlib.util.spec_from_file_location("sb3_compare", ROOT / "examples" / "sb3_compare.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def trained_sb3(task: Task, work: Path, algo: str, seed: int):
+    """SB3 ``algo`` trained as examples/sb3_compare.py trains it (its hyperparameters, budget and
+    start pool) at ``seed``, once; the model and its VecNormalize statistics are kept under ``work``."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    sb3 = _sb3_compare()
+    name = SB3_PROBLEM[task.name]
+    out = work / task.name / f"sb3-{algo}" / f"s{seed}"
+    model_path = out / "models" / f"{algo}_{name}.zip"
+    if not model_path.exists():
+        (out / "models").mkdir(parents=True, exist_ok=True)
+        args = argparse.Namespace(
+            seed=seed,
+            smoke=False,
+            timesteps=150_000,
+            sac_timesteps=15_000,
+            eval_points=4,
+            out=out,
+            tensorboard=None,
+            vec_env="native",
+            start_pool=sb3.START_POOL,
+        )
+        problem = {"name": name, **sb3.PROBLEMS[name]}
+        print(f"[train] {task.name}: SB3 {algo} at seed {seed} ...", flush=True)
+        result = sb3.train_sb3(algo, problem, task.train, sb3.EvalSet(task.train, problem["cbf"]), args)
+        (out / "train.json").write_text(json.dumps(result, default=float, indent=1), encoding="utf-8")
+    model = sb3.ALGOS[algo].load(model_path, device="cpu")
+    venv = make_vec_env(sb3.PROBLEMS[name]["env_id"], n_envs=1)
+    normalizer = VecNormalize.load(str(out / "models" / f"{algo}_{name}_vecnormalize.pkl"), venv)
+    normalizer.training = False
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        action, _ = model.predict(normalizer.normalize_obs(obs), deterministic=True)
+        return np.clip(action.astype(np.float64), -1.0, 1.0)
+
+    return act
+
+
+# ------------------------------------------------------------------------------- measurement
+
+
+def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
+    """Every column but the compute one, for one row: one flight per seed (one in all for a
+    deterministic controller), nominal and under the dispersion set."""
+    per_seed = []
+    for seed in seeds if entry.kind != "classical" else [None]:
+        policy = entry.make(seed)
+        flight = task.fly(policy, entry.cbf, entry.starts)
+        metrics = task.metrics(flight)
+        result = {
+            "seed": seed,
+            "metrics": metrics,
+            "terminal_distance": flight.terminal_distance.tolist(),
+            "violation_rates": violation_rates(task, flight),
+        }
+        if isinstance(policy, RecedingHorizon):
+            result["mpc"] = {
+                "solves": int(policy.solves.sum()),
+                "infeasible_resolves": int(policy.infeasible.sum()),
+                "fallbacks": int(policy.fallbacks.sum()),
+                "soft_replans": int(policy.soft.sum()),
+            }
+        dispersed = task.fly(entry.make(seed), entry.cbf, entry.starts, dispersed=True)
+        result["dispersed_success_rate"] = float(dispersed.is_success.mean())
+        if entry.kind == "classical":
+            first = task.fly(entry.make(seed), entry.cbf, min(SUBSET, len(task.held_out.starts)))
+            result["subset"] = {
+                "n_starts": len(first.terminal_distance),
+                "metric": task.metrics(first)[task.train.METRIC],
+            }
+        per_seed.append(result)
+    return {"per_seed": per_seed}
+
+
+def violation_rates(task: Task, flight) -> dict | None:
+    """The share of steps breaking each constraint the task has, over the starts."""
+    if not task.docking:
+        return None
+    rates = {"keep_out": float(flight.violation_rate.mean())}
+    if flight.speed_violation_rate is not None:
+        rates["speed"] = float(flight.speed_violation_rate.mean())
+    if flight.cone_violation_rate is not None:
+        rates["cone"] = float(flight.cone_violation_rate.mean())
+    return rates
+
+
+def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
+    """p50 and p99 [µs] of one step's compute for one start: the policy on one observation, then
+    the filter on its action (docking rows with a CBF). MPC's solve is timed inside it, without the
+    condensed model of each remaining horizon, which is built once and shared."""
+    n = min(2 if entry.starts else TIMED_STARTS, len(task.held_out.starts))
+    samples = []
+    for i in range(n):
+        policy = entry.make(seed)
+        calls: list[tuple[float, np.ndarray, np.ndarray]] = []
+
+        def timed(obs, policy=policy, calls=calls):
+            started = time.perf_counter()
+            action = policy(obs)
+            calls.append((time.perf_counter() - started, obs, np.asarray(action)))
+            return action
+
+        held = task.held_out.take(i + 1)
+        flight = fly(
+            task.problem,
+            timed,
+            held.starts[i : i + 1],
+            held.goals[i : i + 1] if task.docking else None,
+            cbf_margin=task.problem.margin if entry.cbf else None,
+        )
+        if isinstance(policy, RecedingHorizon):
+            seconds = np.array(policy.solve_seconds)
+        else:
+            seconds = np.array([c[0] for c in calls])
+            if entry.cbf:
+                for k, (_, _, action) in enumerate(calls):
+                    state, goal = flight.states[:, k], flight.goals
+                    started = time.perf_counter()
+                    filter_actions(np.clip(action, -1.0, 1.0), state, task.problem, task.problem.margin, goal)
+                    seconds[k] += time.perf_counter() - started
+        samples.append(seconds)
+    seconds = np.concatenate(samples) * 1e6
+    return {
+        "p50": float(np.percentile(seconds, 50)),
+        "p99": float(np.percentile(seconds, 99)),
+        "steps": len(seconds),
+    }
+
+
+# ------------------------------------------------------------------------------------ output
+
+
+def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
+    """The leaderboard.json row: the issue's keys first, then what explains them."""
+    per_seed = measured["per_seed"]
+    metric = task.train.METRIC
+
+    def mean(key):
+        return float(np.mean([r["metrics"][key] for r in per_seed]))
+
+    distances = np.concatenate([r["terminal_distance"] for r in per_seed])
+    values = [r["metrics"][metric] for r in per_seed]
+    rates = [r["violation_rates"] for r in per_seed]
+    out = {
+        "task": task.name,
+        "controller": entry.name,
+        "split": "test",
+        "n_starts": len(per_seed[0]["terminal_distance"]),
+        "metric": float(np.mean(values)),
+        "success_rate": mean("success_rate"),
+        "violation_rate": None
+        if rates[0] is None
+        else {k: float(np.mean([r[k] for r in rates])) for k in rates[0]},
+        "p99_terminal_distance": float(np.percentile(distances, 99)),
+        "max_terminal_distance": float(distances.max()),
+        "delta_v_ratio": mean("delta_v_ratio"),
+        "energy_ratio": mean("effort_ratio"),
+        "us_per_step": timing,
+        "dispersed_success_rate": float(np.mean([r["dispersed_success_rate"] for r in per_seed])),
+        "metric_name": metric,
+        "median_terminal_distance": float(np.median(distances)),
+        "strict_feasible": [r["metrics"]["strict_feasible"] for r in per_seed] if task.docking else None,
+        "cbf": entry.cbf,
+        "kind": entry.kind,
+        "source": entry.source,
+    }
+    if entry.kind != "classical":
+        out |= {
+            "seeds": [r["seed"] for r in per_seed],
+            "metric_per_seed": values,
+            "metric_std": float(np.std(values, ddof=1)) if len(values) > 1 else None,
+        }
+    if entry.config:
+        out["config"] = entry.config
+    if "subset" in per_seed[0]:
+        out["subset"] = per_seed[0]["subset"]
+    if "mpc" in per_seed[0]:
+        out["mpc"] = per_seed[0]["mpc"]
+    return out
+
+
+def fmt(value, digits: int = 3) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float) and (abs(value) >= 1e4 or (0 < abs(value) < 1e-3)):
+        return f"{value:.{digits - 1}e}"
+    return f"{value:.{digits}g}"
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = []
+    for task in dict.fromkeys(r["task"] for r in rows):
+        block = [r for r in rows if r["task"] == task]
+        lines += [
+            f"### {task} (test split, {max(r['n_starts'] for r in block)} starts; metric: {block[0]['metric_name']}, lower is better)",
+            "",
+            "| controller | metric | success | violation rate (per constraint) | p99 / max terminal distance [m] "
+            "| Δv / expert | energy / expert | µs per step (p50 / p99) | success under dispersions | note |",
+            "|---|---:|---:|---|---:|---:|---:|---:|---:|---|",
+        ]
+        for r in block:
+            metric = fmt(r["metric"])
+            if r.get("metric_std") is not None:
+                metric += f" ± {fmt(r['metric_std'], 2)} (n={len(r['seeds'])})"
+            rates = (
+                "-"
+                if r["violation_rate"] is None
+                else ", ".join(f"{k} {v:.2%}" for k, v in r["violation_rate"].items())
+            )
+            timing = (
+                "-"
+                if r["us_per_step"] is None
+                else f"{fmt(r['us_per_step']['p50'])} / {fmt(r['us_per_step']['p99'])}"
+            )
+            notes = []
+            if r["n_starts"] != max(x["n_starts"] for x in block):
+                notes.append(f"first {r['n_starts']} starts")
+            if r.get("mpc"):
+                m = r["mpc"]
+                of = f" of {m['solves']}" if "solves" in m else ""  # rows measured before the count
+                notes.append(
+                    f"{m['infeasible_resolves']}{of} re-solves failed ({m['fallbacks']} flown on the "
+                    f"previous plan or the law, {m.get('soft_replans', 0)} re-planned soft)"
+                )
+            if r["strict_feasible"] is not None:
+                notes.append(f"strict-feasible {sum(r['strict_feasible'])}/{len(r['strict_feasible'])}")
+            lines.append(
+                f"| {r['controller']} | {metric} | {r['success_rate']:.1%} | {rates} | "
+                f"{fmt(r['p99_terminal_distance'])} / {fmt(r['max_terminal_distance'])} | {fmt(r['delta_v_ratio'])} | "
+                f"{fmt(r['energy_ratio'])} | {timing} | {r['dispersed_success_rate']:.1%} | {'; '.join(notes)} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict], task: str, path: Path) -> None:
+    """Metric against energy over the expert's, log-log; marker area grows with the compute per step."""
+    block = [r for r in rows if r["task"] == task]
+    figure = Figure(figsize=(8.5, 5.5), layout="constrained")
+    ax = figure.subplots()
+    floor = 1e-9  # the open-loop expert's ~1e-13 would flatten the rest: drawn at the floor
+    for i, r in enumerate(block):
+        micro = r["us_per_step"]["p50"] if r["us_per_step"] else 1.0
+        area = 30 * (1 + np.log10(max(micro, 1.0))) ** 2
+        x, y = r["energy_ratio"], max(r["metric"], floor)
+        label = f"{r['controller']}: {fmt(r['metric'])}, {fmt(micro)} µs/step"
+        ax.scatter([x], [y], s=area, color=f"C{i % 10}", alpha=0.6, edgecolor="k", label=label, zorder=3)
+        ax.annotate(
+            r["controller"], (x, y), xytext=(6, 4 + 8 * (i % 2)), textcoords="offset points", fontsize=7
+        )
+        if r.get("metric_per_seed"):  # each seed's value as a tick beside the mean
+            seeds = np.maximum(r["metric_per_seed"], floor)
+            ax.scatter([x] * len(seeds), seeds, s=60, color=f"C{i % 10}", marker="_", zorder=4)
+    n = max(r["n_starts"] for r in block)
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="energy / open-loop expert's (Σ|u|²dt, summed over the same starts)",
+        ylabel=f"{block[0]['metric_name']} (lower is better; floor {floor:g})",
+    )
+    ax.set_title(f"{task}: {n} sealed test starts\nmarker area grows with the compute per step", fontsize=10)
+    ax.grid(True, which="both", lw=0.3)
+    ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    figure.savefig(path, dpi=100)
+
+
+# -------------------------------------------------------------------------------------- main
+
+
+def main(argv=None) -> None:
+    args = parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)
+    out_json = args.out / "leaderboard.json"
+    kept = json.loads(out_json.read_text(encoding="utf-8")) if out_json.exists() else []
+    rows = [
+        r for r in kept if r["task"] not in args.tasks or (args.rows and r["controller"] not in args.rows)
+    ]
+    for name in args.tasks:
+        task = Task.load(name, args.starts)
+        for entry in entries(task, args.work, args.seeds):
+            if args.rows and entry.name not in args.rows:
+                continue
+            cache = args.work / "rows" / f"{name}-n{len(task.held_out.starts)}" / f"{slug(entry.name)}.json"
+            key = {
+                "seeds": args.seeds if entry.kind != "classical" else None,
+                "config": entry.config,
+                "starts": entry.starts,
+            }
+            cached = (
+                json.loads(cache.read_text(encoding="utf-8")) if cache.exists() and not args.fresh else {}
+            )
+            if cached.get("key") != key:
+                print(f"[fly] {name}: {entry.name} ...", flush=True)
+                started = time.perf_counter()
+                cached = {"key": key, "measured": measure(task, entry, args.seeds)}
+                print(f"[fly] {name}: {entry.name}: {time.perf_counter() - started:.0f} s", flush=True)
+            if args.retime or "timing" not in cached:
+                cached["timing"] = time_per_step(
+                    task, entry, args.seeds[0] if entry.kind != "classical" else None
+                )
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            cache.write_text(json.dumps(cached), encoding="utf-8")
+            rows.append(row(task, entry, cached["measured"], cached["timing"]))
+            r = rows[-1]
+            print(
+                f"[row] {name}: {entry.name}: {r['metric_name']} {fmt(r['metric'])}, success {r['success_rate']:.1%}, "
+                f"p99/max {fmt(r['p99_terminal_distance'])}/{fmt(r['max_terminal_distance'])}, "
+                f"energy x{fmt(r['energy_ratio'])}, {fmt(r['us_per_step']['p50'])} µs/step",
+                flush=True,
+            )
+    rows.sort(key=lambda r: (TASKS.index(r["task"]), rank(r["controller"])))
+    args.out.mkdir(parents=True, exist_ok=True)
+    out_json.write_text(json.dumps(rows, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    (args.out / "leaderboard.md").write_text(markdown(rows), encoding="utf-8")
+    for task in dict.fromkeys(r["task"] for r in rows):
+        plot(rows, task, args.out / f"leaderboard_{task}.png")
+    print(f"wrote {out_json}, leaderboard.md and one PNG per task to {args.out}")
+
+
+if __name__ == "__main__":
+    main()
