@@ -105,7 +105,9 @@ def test_wall_clock(toy, tmp_path):
     script = [{"EPOCHS": e} for e in range(11, 30)]
     _, records = run_loop(toy, SlowProposer(script), tmp_path / "c", max_seconds=0.5)
     assert records[-1]["trigger"] == "wall_clock" and records[-1]["elapsed_s"] >= 0.5  # rounded to ms
-    assert 2 <= len(records) <= 5
+    # Each iteration takes 0.3 s or more, so the clock stops the 19-step script within a few; a
+    # loaded machine may stop it before the first run ends (CI did), never after the 5th.
+    assert len(records) <= 5 and statuses(records)[:-1] == ["ran"] * (len(records) - 1)
 
 
 def test_precedence_and_closest_trigger(toy, tmp_path):
