@@ -30,7 +30,7 @@ never committed), so a re-run only measures what is missing. Writes ``leaderboar
 ``leaderboard.md`` and ``leaderboard_<task>.png`` to ``--out`` (results/). MPC on constrained
 docking re-solves a second-order-cone program at each of 240 steps (38 ms a step, about 9 s a
 start, here): it flies the first ``MPC_STARTS`` starts of the split (32: 24 min on one core, nominal
-and dispersed), which its row says.
+and dispersed, partly beside another job), which its row says.
 """
 
 from __future__ import annotations
