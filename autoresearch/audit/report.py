@@ -362,7 +362,7 @@ def tails_lines(verify: dict[str, Any]) -> list[str]:
     lines = [
         "",
         f"Per-seed spread and worst starts on the {verify.get('split', 'search')} split ({rule}; a seed is far "
-        f"outside the rest beyond {OUTLIER_UNITS:g} robust sd of the others):",
+        f"outside the rest when worse than the others' median by more than {OUTLIER_UNITS:g} robust sd):",
         "",
         "| Config | min / median / max | Worst start (seed) | Reseeds with a runaway start | Far outside the rest |",
         "|---|---|---|---|---|",

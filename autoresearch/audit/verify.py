@@ -130,7 +130,7 @@ def assess(
         "n_parity_excluded": len(rows) - n_failed - len(values),
         "n_feasible": sum(feasible),
         "by_split": by_split,
-        "tails": tails.summarize(reseeds, declared=bool(tail_fields)),
+        "tails": tails.summarize(reseeds, declared=bool(tail_fields), sign=sign),
     }
     if not values:
         return {**out, "passed": False, "reason": "no valid reseeds"}
