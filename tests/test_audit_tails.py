@@ -98,6 +98,14 @@ def test_the_runaway_gate_refuses_what_the_papers_gate_passes(tmp_path, monkeypa
     report = write_report(root).read_text()
     assert "| Reseeds with a runaway start |" in report and "s6: 0.000977" in report
     assert "7300 (s6)" in report and "the paper's gate: runaways reported, not gated" in report
+    # The same verification run again (every reseed reused): the family's history gains no second entry.
+    history = Family.load(family.path).ledger.promotions
+    again = verify(open_campaign(root), LocalExecutor(2), top=1, n_seeds=4, gate=tails.PAPER)
+    assert again["promoted"] == part["promoted"] and Family.load(family.path).ledger.promotions == history
+    assert again["family_best"] == {
+        "updated": False,
+        "why": "this very certification is already the family's best",
+    }
 
 
 def test_the_gate_is_a_cli_switch_and_the_declaration_is_checked(tmp_path, capsys):

@@ -221,24 +221,23 @@ def promote(
     Returns {"updated", "why"}."""
     family = campaign.family
 
+    entry = {
+        "config": candidate["config"],
+        "metric": candidate["mu_r"],
+        "std": candidate["sigma_r"],
+        "n": candidate["n"],
+        "split": candidate["split"],
+        "by_split": candidate["by_split"],
+        "source": {"campaign": campaign_ref(campaign), "run_id": candidate["source"]["run_id"], "step": step},
+        **extra,
+    }
+
     def decide(registry: dict[str, Any], old: Ledger) -> tuple[Ledger, dict[str, Any]]:
         best = registry.get("best")
+        if old.current(best) == entry:  # the audit step run again on the same reseeds: one history entry
+            return old, {"updated": False, "why": "this very certification is already the family's best"}
         write, why = _replaces_family_best(old.current(best) or best, family, candidate, campaign)
         if write:
-            entry = {
-                "config": candidate["config"],
-                "metric": candidate["mu_r"],
-                "std": candidate["sigma_r"],
-                "n": candidate["n"],
-                "split": candidate["split"],
-                "by_split": candidate["by_split"],
-                "source": {
-                    "campaign": campaign_ref(campaign),
-                    "run_id": candidate["source"]["run_id"],
-                    "step": step,
-                },
-                **extra,
-            }
             registry["best"], old = best_of(entry), old.promoted(entry)
         return old, {"updated": write, "why": why}
 
