@@ -2,7 +2,7 @@
 examples/fly_onnx.py, with real torch, onnx and onnxruntime.
 
 A tiny policy is trained by a copy of each family's train.py (tiny data pools and budget, the real
-128 search starts), exported by the copy's export.py and flown by fly_onnx.py. How close the two
+search starts), exported by the copy's export.py and flown by fly_onnx.py. How close the two
 flights can be: the graph is the same float32 function, but onnxruntime's matrix products and tanh
 round differently from torch's (about 94 % of action components differ, by at most ~2e-7), and the
 closed loop amplifies that over the horizon. Measured on the default recipes (seed 0; 128 search
@@ -131,13 +131,17 @@ def test_onnx_flight_matches_the_torch_flight(name, exported):
     reference = train.evaluate(policy, held_out, cbf) if cbf else train.evaluate(policy, held_out)
     assert reference[METRICS[name]] == saved["record"][METRICS[name]]
     flown = json.loads(run(ROOT / "examples" / "fly_onnx.py", "--family", name, path, cwd=family))
-    assert flown["n_starts"] == 128 and flown["split"] == "search" and flown["runtime_cbf_filter"] is cbf
+    assert (
+        flown["n_starts"] == train.N_EVAL
+        and flown["split"] == "search"
+        and flown["runtime_cbf_filter"] is cbf
+    )
     assert flown[METRICS[name]] == pytest.approx(reference[METRICS[name]], rel=1e-5)
     assert flown["success_rate"] == reference["success_rate"]
     if cbf:
         assert flown["violation_rate"] == pytest.approx(reference["violation_rate"], rel=1e-5, abs=1e-9)
         assert flown["cbf_active_rate"] == pytest.approx(
-            reference["cbf_active_rate"], abs=1 / (128 * 240) + 1e-12
+            reference["cbf_active_rate"], abs=1 / (train.N_EVAL * train.PROBLEM.horizon) + 1e-12
         )
 
 
@@ -152,7 +156,7 @@ def test_docking_export_records_a_recipe_without_the_filter_and_fly_onnx_follows
     assert meta["runtime_cbf_filter"] is False and meta["cbf_margin"] is None
     train = import_train(family / "train.py")
     policy, _ = train.load_policy(tmp_path / "policy.pt")
-    reference = train.evaluate(policy, evaluation_set("docking", 128), False)
+    reference = train.evaluate(policy, evaluation_set("docking", train.N_EVAL), False)
     flown = json.loads(
         run(ROOT / "examples" / "fly_onnx.py", "--family", "docking", tmp_path / "off.onnx", cwd=tmp_path)
     )

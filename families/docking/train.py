@@ -88,7 +88,9 @@ VIOLATION_WEIGHT = 10.0  # Eq. rpo_score: one sustained violation outweighs the 
 POOL_DEMOS = 2048  # the N_DEMOS upper bound: one fixed pool (nested: its first N are the same for any size)
 MAX_RECOVERY_FRAC = 0.5  # the RECOVERY_AUGMENT_FRAC upper bound
 POOL_RECOVERY = round(MAX_RECOVERY_FRAC * POOL_DEMOS)  # recovery trajectories: also one fixed pool
-N_EVAL = 128  # held-out, screened far-side evaluation starts: the search split
+# The search split: held-out, screened far-side evaluation starts. 512, not the paper's 128: on 128 a
+# search picked the sealed-split best 99.5 % of the time, on 512 always (results/selection-noise).
+N_EVAL = 512
 N_TEST = 1024  # the sealed test split, screened alike (--eval-split test)
 N_PROGRESS = 16  # search starts behind each PROGRESS line: a cheap proxy of the metric
 # The Monte Carlo auxiliary's fixed dispersion set (standard deviations; cwh_envs.dispersions):

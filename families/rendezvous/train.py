@@ -73,7 +73,9 @@ TASK = "rendezvous"
 METRIC = "mean_terminal_distance"
 PROBLEM = RendezvousProblem()  # every constant: horizon, u_max, success thresholds, (A, B)
 POOL_DEMOS = 16384  # the N_DEMOS upper bound: one fixed pool (nested: its first N are the same for any size)
-N_EVAL = 128  # held-out, reachability-screened evaluation starts: the search split
+# The search split: held-out, reachability-screened evaluation starts. 512, not the paper's 128: on 128
+# a search picked the sealed-split best 79 % of the time, on 512 99 % (results/selection-noise).
+N_EVAL = 512
 N_TEST = 1024  # the sealed test split, screened alike (--eval-split test)
 N_PROGRESS = 16  # search starts behind each PROGRESS line: a cheap proxy of the metric
 PROGRESS_POINTS = 4  # PROGRESS lines per run, at evenly spaced epochs (the last one included)
