@@ -7,9 +7,13 @@
 # by benchmarks/pick_main_seed.py (results/README.md, "Main job") because its first draw over the
 # random-range space is priced at seconds and well below the seed noise, so the candidate the
 # audit reruns (3 reseeds, ~12 leave-one-out probes, 3 re-verifications) is a cheap one.
+# The paper's protocol (PROTOCOL=paper, the default) keeps the campaign short: without it the
+# space has the algorithm axis (residual policies, DAgger), whose candidate has more edits to prune
+# and whose probes cost minutes (1433 s for the whole job instead of about 4 min, results/README.md).
 # A run that overruns TIMEOUT fails at the crash cost. Override with FAMILY=docking,
-# PROPOSER=gp|random, SPACE=bounds, SEED, RUNS (experiments, the baseline included), TIMEOUT, SEEDS
-# (reseeds per candidate), COUNT (random-arm draws).
+# PROPOSER=gp|random, SPACE=bounds, PROTOCOL= (empty: the family's whole space), SEED, RUNS
+# (experiments, the baseline included), TIMEOUT, SEEDS (reseeds per candidate), COUNT (random-arm
+# draws).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 source "$root/scripts/bootstrap.sh"
@@ -23,8 +27,10 @@ echo "[main] warming the ${family} demonstration cache"
 python "families/${family}/prepare.py" --warm-cache
 resume=()
 [ -f "$campaign/campaign.json" ] && resume=(--resume)
-echo "[main] campaign: ${proposer} over the ${SPACE:-random-range} space of ${family} -> ${campaign}"
-autoresearch loop --family "$family" --proposer "$proposer" --space "${SPACE:-random-range}" \
+protocol=()
+[ -n "${PROTOCOL-paper}" ] && protocol=(--protocol "${PROTOCOL-paper}")
+echo "[main] campaign: ${proposer} over the ${SPACE:-random-range} space of ${family} (protocol: ${PROTOCOL-paper}) -> ${campaign}"
+autoresearch loop --family "$family" --proposer "$proposer" --space "${SPACE:-random-range}" "${protocol[@]}" \
   --max-iters "${RUNS:-4}" --max-failures 100 --plateau-window 100 --seed "${SEED:-16}" \
   --timeout-per-run "${TIMEOUT:-120}" --campaign "$campaign" --plain "${resume[@]}"
 echo "[main] audit: seed noise if the family has none, reseeded verification, pruning, random arm (gated on the sealed test split)"
