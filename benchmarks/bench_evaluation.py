@@ -63,16 +63,18 @@ def main() -> None:
         for split, n in (("search", train.N_EVAL), ("test", train.N_TEST)):
             held_out = evaluation_set(train.TASK, n, problem=train.PROBLEM, split=split)
             scores[split] = timed(functools.partial(train.evaluate, policy, held_out, *cbf), args.repeats)
-        rows.append((name, builds, scores))
+        rows.append((name, train.N_EVAL, builds, scores))
     print(
         f"Python {platform.python_version()}, torch {torch.__version__}, OMP_NUM_THREADS="
         f"{os.environ.get('OMP_NUM_THREADS')}, median of {args.repeats}\n"
     )
+    sizes = sorted({n for _, n, _, _ in rows})  # the families' N_EVAL
     print(
-        "| family | build search (128) | build test (1024) | evaluate search | evaluate test | test / search |"
+        f"| family | build search ({'/'.join(map(str, sizes))}) | build test (1024) | evaluate search "
+        "| evaluate test | test / search |"
     )
     print("|---|---:|---:|---:|---:|---:|")
-    for name, builds, scores in rows:
+    for name, _, builds, scores in rows:
         print(
             f"| {name}{' (CBF on)' if name == 'docking' else ''} | {builds['search']:.2f} s | {builds['test']:.2f} s "
             f"| {scores['search']:.3f} s | {scores['test']:.3f} s | {scores['test'] / scores['search']:.1f}x |"

@@ -348,9 +348,11 @@ def evaluation_rows() -> list[Row]:
     """What scoring on the sealed test split costs an audit run, from bench_evaluation.py's
     committed output (nothing is run)."""
     log = ROOT / EVALUATION_LOG
-    what = "evaluation per audit run, sealed test split (1024 starts) vs search split (128)"
+    what = "evaluation per audit run, sealed test split (1024 starts) vs search split"
     if not log.is_file():
         return [(what, "not run", "", f"benchmarks/bench_evaluation.py > {EVALUATION_LOG}")]
+    searched = re.search(r"build search \((\d+)\)", log.read_text(encoding="utf-8"))
+    what += f" ({searched.group(1)})" if searched else ""  # the size the log was measured at
     return [
         (
             f"{what}, {family}",

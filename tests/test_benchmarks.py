@@ -162,7 +162,8 @@ def test_sb3_and_evaluation_rows_read_the_committed_tables(tmp_path, monkeypatch
     assert rdv[0].endswith("rendezvous") and rdv[1:3] == ("20,000 vs 10,000", "2.00x (rollout alone 3.00x)")
     assert dock[0].endswith("docking+cbf") and dock[1] == "9,000 vs 2,000" and dock[3].startswith("8 envs")
     (row,) = run_all.evaluation_rows()
-    assert row[0].endswith("rendezvous") and row[1:3] == ("0.40 s vs 0.05 s", "8.0x") and "0.3 s" in row[3]
+    assert row[0].endswith("search split (128), rendezvous") and row[1:3] == ("0.40 s vs 0.05 s", "8.0x")
+    assert "0.3 s" in row[3]
 
 
 def test_install_rows_read_the_committed_table(tmp_path, monkeypatch):
