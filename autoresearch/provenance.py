@@ -89,9 +89,12 @@ def family_hashes(family_dir: Path) -> dict[str, str | None]:
 def family_hash_as_seen(family_dir: Path, seen: dict[str, Any]) -> str | None:
     """family.json's hash (as :func:`family_hashes`) as a campaign that was shown the registry
     ``seen`` recorded it: the top-level fields, parameters and axes the family declared since left
-    out, and the baseline restricted to the parameters seen. It equals the recorded hash exactly
-    when the family only grew (new parameters, which every earlier run held at their baseline
-    value; new fields such as ``protocols``); None when family.json does not read."""
+    out, the baseline restricted to the parameters seen, and the baseline's metric as seen. It
+    equals the recorded hash exactly when the family only grew (new parameters, which every earlier
+    run held at their baseline value; new fields such as ``protocols``) or its baseline was measured
+    again (the metric is a measurement, like the seed noise, and every campaign measures its own
+    baseline first: the search split moving from 128 to 512 starts re-measured it); None when
+    family.json does not read."""
     try:
         registry = json.loads((family_dir / "family.json").read_bytes())
         space, axes = seen["search_space"], seen["axes"]
@@ -100,6 +103,9 @@ def family_hash_as_seen(family_dir: Path, seen: dict[str, Any]) -> str | None:
         kept["axes"] = [axis for axis in registry["axes"] if axis in axes]
         baseline = registry["baseline"]
         kept["baseline"] = {**baseline, "config": {k: v for k, v in baseline["config"].items() if k in space}}
+        kept["baseline"].pop("metric", None)
+        if "metric" in seen["baseline"]:
+            kept["baseline"]["metric"] = seen["baseline"]["metric"]
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
     return hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()[:16]

@@ -148,3 +148,25 @@ def test_a_family_that_only_grew_is_the_same_family_to_its_campaigns(tmp_path, m
     grow(toy, spec_change=59)
     with pytest.raises(CampaignError, match="search space changed"):
         meta.open_family(tmp_path / "c")
+
+
+def test_a_baseline_measured_again_is_the_same_family_but_a_changed_target_is_not(tmp_path, monkeypatch):
+    """The baseline's metric is a measurement (the search split moving from 128 to 512 starts
+    re-measured both shipped families'): re-measured, the family still opens its campaigns; with
+    its target changed, it does not."""
+    monkeypatch.chdir(tmp_path)
+    toy = copy_toy(tmp_path)
+    assert (
+        main(["loop", "--family", str(toy), "--proposer", "random", "--max-iters", "2", "--campaign", "c"])
+        == 0
+    )
+    registry = json.loads((toy / "family.json").read_text())
+    registry["baseline"]["metric"] = 0.123
+    (toy / "family.json").write_text(json.dumps(registry, indent=2))
+    meta = CampaignMeta.read(tmp_path / "c")
+    assert meta.open_family(tmp_path / "c").registry["baseline"]["metric"] == 0.123
+    assert main(["check", "--campaign", "c"]) == 0
+    registry["target"] = 2 * registry["target"] + 1
+    (toy / "family.json").write_text(json.dumps(registry, indent=2))
+    with pytest.raises(CampaignError, match="its metric, target, baseline or search space changed"):
+        meta.open_family(tmp_path / "c")
