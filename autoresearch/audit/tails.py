@@ -60,8 +60,8 @@ def outlier(value: float, others: list[float], sign: int) -> dict[str, Any] | No
 
 def summarize(reseeds: list[dict[str, Any]], declared: bool, sign: int) -> dict[str, Any]:
     """The tails of the valid reseeds (``excluded`` None, a metric): the per-seed spread, the seeds far
-    outside the rest on the worse side of ``sign`` (the direction's sigma_dir) and, when the family declares its tail fields, the worst start and the reseeds
-    with a runaway start."""
+    outside the rest on the worse side of ``sign`` (the direction's sigma_dir) and, when the family
+    declares its tail fields, the worst start and the reseeds with a runaway start."""
     valid = [r for r in reseeds if r["excluded"] is None and r["metric"] is not None]
     values = [r["metric"] for r in valid]
     out: dict[str, Any] = {"spread": None, "outliers": []}
