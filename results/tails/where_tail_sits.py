@@ -76,6 +76,9 @@ def main(run_dirs: list[str]) -> None:
         f"\n{len(run_dirs)} runs, their starts pooled: {spread(np.concatenate(pooled))} m. The closed-form "
         f"law + CBF from the same starts: {spread(law.terminal_distance)} m (mean / p99 / max).\n"
     )
+    if not missed:
+        print("No start missed by any run.")
+        return
     print(
         f"{len(missed)} starts missed by at least one run; the {min(len(missed), TOP)} missed by the most runs:\n"
     )
