@@ -154,6 +154,32 @@ def test_dagger_labels_are_the_expert_resolved_from_the_visited_states(trains, n
     np.testing.assert_allclose(thrust[-2:], law, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", ["docking", "docking-constrained"])
+def test_a_spent_budget_ends_the_relabelling_at_the_steps_labelled(trains, name):
+    """The docking experts can take longer per round than a run's whole budget: relabelling stops at
+    the first step past it and keeps every start's steps before it, each the expert's own label."""
+    train = trains[name]
+    problem = train.PROBLEM
+    starts, goals = starts_of(train, 2)
+    flight = fly(problem, lambda obs: pd_action(obs, problem), starts, goals, cbf_margin=problem.margin)
+    budget = train.Budget(1e-9)
+    budget.start()
+    obs, thrust, labels = train.relabel(flight, budget=budget)
+    assert obs.shape == (0, train.OBS_DIM) and thrust.shape == (0, 3) and budget.exhausted
+    assert labels["relabelled_states"] == labels["last_step_law_labels"] == 0
+
+    budget = train.Budget(0.3)  # the first step always runs; a whole flight takes minutes
+    budget.start()
+    obs, thrust, labels = train.relabel(flight, budget=budget)
+    steps = len(obs) // 2
+    assert 1 <= steps < problem.horizon and len(obs) == len(thrust) == 2 * steps
+    assert labels["relabelled_states"] == 2 * steps and labels["last_step_law_labels"] == 0
+    if name == "docking":  # step 0: the expert solved from the start over the whole horizon
+        for i in range(2):
+            _, controls = experts.solve_docking(starts[i], goals[i], problem)
+            np.testing.assert_allclose(thrust[i], controls[0], rtol=0, atol=1e-3)
+
+
 # Docking relabels with its SCP (about 0.2 s a state from an untrained policy's states): one round
 # from one start keeps it near a minute.
 @pytest.mark.parametrize(("name", "iters", "starts"), [("rendezvous", 2, 3), ("docking", 1, 1)])

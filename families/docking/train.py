@@ -412,8 +412,12 @@ def dagger(
             break
         started = time.perf_counter()
         flight = fly(policy, starts, goals, config["RUNTIME_CBF_FILTER"])
-        new_obs, new_actions, labels = relabel(flight, expert_problem(config))
+        new_obs, new_actions, labels = relabel(flight, expert_problem(config), budget)
         counts["relabel_seconds"] += time.perf_counter() - started
+        if budget.exhausted:  # spent while relabelling: the round's labels are not trained on
+            counts["rounds"] = round_ - 1
+            counts["unused_relabelled_states"] = labels["relabelled_states"]
+            break
         for key, value in labels.items():
             counts[key] += value
         obs, actions = np.concatenate([obs, new_obs]), np.concatenate([actions, new_actions])
@@ -424,27 +428,32 @@ def dagger(
     return policy, best_loss, len(obs), counts
 
 
-def relabel(flight: Flight, expert_at: DockingProblem = PROBLEM) -> tuple[np.ndarray, np.ndarray, dict]:
+def relabel(
+    flight: Flight, expert_at: DockingProblem = PROBLEM, budget: Budget | None = None
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """Observations (N H, 10) of every state a flight visited (steps 0..H-1) and the expert's thrust
     [N] there: receding-horizon MPC flown over the visited states in time order, so that each state
     gets the first control of the expert re-solved over the steps left, warm-started from the same
     start's previous label; the soft expert (every constraint and the terminal state as penalties)
     where the hard one cannot answer, and at the last step the closed-form law's one-step control.
-    ``expert_at``: the problem the expert solves (EXPERT_MARGIN's standoff)."""
+    ``expert_at``: the problem the expert solves (EXPERT_MARGIN's standoff). A ``budget`` spent
+    before a step ends it there: the steps labelled so far (every start's first k) are returned, since
+    a round from an untrained policy's states can take longer than a run's whole budget."""
     expert = RecedingHorizon(expert_at, on_failure="soft")  # a label answers from this very state
-    horizon = PROBLEM.horizon
-    obs = [
-        docking_observation(flight.states[:, k], flight.goals, k, horizon, dtype=np.float64)
-        for k in range(horizon)
-    ]
-    thrust = [expert(o) * PROBLEM.u_max for o in obs]
-    n = len(flight.states)
+    horizon, n = PROBLEM.horizon, len(flight.states)
+    obs, thrust = [np.empty((0, OBS_DIM))], [np.empty((0, 3))]
+    for k in range(horizon):
+        if budget is not None and budget.spent():
+            break
+        obs.append(docking_observation(flight.states[:, k], flight.goals, k, horizon, dtype=np.float64))
+        thrust.append(expert(obs[-1]) * PROBLEM.u_max)
+    steps = len(obs) - 1
     labels = {
-        "relabelled_states": n * horizon,
+        "relabelled_states": n * steps,
         "hard_labels": int(expert.solves.sum() - expert.infeasible.sum()),
         "soft_labels": int(expert.soft.sum()),
         "fallback_labels": int(expert.fallbacks.sum()),
-        "last_step_law_labels": n,
+        "last_step_law_labels": n if steps == horizon else 0,
     }
     return np.concatenate(obs), np.concatenate(thrust), labels
 
