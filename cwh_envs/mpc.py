@@ -101,10 +101,7 @@ class RecedingHorizon:
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         obs = np.asarray(obs)
         single = obs.ndim == 1
-        batch = np.atleast_2d(obs).astype(np.float64)
-        docking = isinstance(self.problem, DockingProblem)
-        if batch.shape[-1] != (DOCKING_OBS_DIM if docking else DOCKING_OBS_DIM - 3):
-            raise ValueError(f"observations of width {batch.shape[-1]} do not fit this problem")
+        batch, docking = self._batch(obs)
         if len(batch) != len(self.plans):
             self._resize(len(batch))
         horizon = self.problem.horizon
@@ -114,15 +111,45 @@ class RecedingHorizon:
             self.plans[row] = None
             self.solves[row] = self.infeasible[row] = self.soft[row] = self.fallbacks[row] = 0
         for row in np.flatnonzero(steps_to_go >= 2):
-            thrust[row] = self._replan(row, batch[row], int(steps_to_go[row]), docking)
+            plan = self.plans[row]
+            warm = plan[1:] if plan is not None and len(plan) == steps_to_go[row] + 1 else None
+            thrust[row] = self._replan(row, batch[row], int(steps_to_go[row]), docking, warm, self.on_failure)
         for row in np.flatnonzero(steps_to_go < 2):
             self.plans[row] = None
         actions = np.clip(thrust / self.problem.u_max, -1.0, 1.0)
         return actions[0] if single else actions
 
-    def _replan(self, row: int, obs: np.ndarray, steps_to_go: int, docking: bool) -> np.ndarray:
-        plan = self.plans[row]
-        warm = plan[1:] if plan is not None and len(plan) == steps_to_go + 1 else None
+    def answer(self, obs: np.ndarray, warm: list[np.ndarray | None]) -> np.ndarray:
+        """Actions (N, 3) for N unrelated states: each row's first control of the expert re-solved
+        from it over its steps to go, as ``__call__`` would, but warm-started from ``warm[row]`` (a
+        control sequence over those steps, e.g. what another policy flew from there, or None) instead
+        of a previous plan of the row. A failed hard re-solve is answered by the soft expert whatever
+        ``on_failure`` says: the warm start is no plan of this expert. DAgger's relabelling of a random
+        subsample of visited states, where no row has a previous plan; the counters restart here."""
+        batch, docking = self._batch(obs)
+        if len(warm) != len(batch):
+            raise ValueError(f"warm has {len(warm)} rows for {len(batch)} observations")
+        self._resize(len(batch))
+        steps_to_go = np.rint(batch[:, -1] * self.problem.horizon).astype(np.int64)
+        thrust = self.law.thrust(batch)
+        for row in np.flatnonzero(steps_to_go >= 2):
+            start = warm[row]
+            if start is not None and len(start) != steps_to_go[row]:
+                raise ValueError(f"warm[{row}] has {len(start)} controls for {steps_to_go[row]} steps to go")
+            thrust[row] = self._replan(row, batch[row], int(steps_to_go[row]), docking, start, "soft")
+        self.plans = [None] * len(batch)  # no row goes on as an episode of __call__
+        return np.clip(thrust / self.problem.u_max, -1.0, 1.0)
+
+    def _batch(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
+        batch = np.atleast_2d(np.asarray(obs)).astype(np.float64)
+        docking = isinstance(self.problem, DockingProblem)
+        if batch.shape[-1] != (DOCKING_OBS_DIM if docking else DOCKING_OBS_DIM - 3):
+            raise ValueError(f"observations of width {batch.shape[-1]} do not fit this problem")
+        return batch, docking
+
+    def _replan(
+        self, row: int, obs: np.ndarray, steps_to_go: int, docking: bool, warm, on_failure: str
+    ) -> np.ndarray:
         problem = self.planned.replace(horizon=steps_to_go)
         experts.linear_model(problem)  # built once per remaining horizon, outside the timed solve
         self.solves[row] += 1
@@ -131,7 +158,7 @@ class RecedingHorizon:
             controls = _solve(obs, problem, warm, docking, soft=False)
         except experts.Infeasible:
             self.infeasible[row] += 1
-            if self.on_failure == "previous_plan" and warm is not None:
+            if on_failure == "previous_plan" and warm is not None:
                 controls = warm
                 self.fallbacks[row] += 1
             else:

@@ -19,6 +19,7 @@ from test_families import family_copy, final_metric, run
 from cwh_envs import experts
 from cwh_envs.controllers import MinEnergyFeedback, pd_action
 from cwh_envs.datasets import evaluation_starts
+from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.prepare import DataNeeds, load_train, required_sets
 from cwh_envs.rollout import fly
 
@@ -178,6 +179,45 @@ def test_a_spent_budget_ends_the_relabelling_at_the_steps_labelled(trains, name)
         for i in range(2):
             _, controls = experts.solve_docking(starts[i], goals[i], problem)
             np.testing.assert_allclose(thrust[i], controls[0], rtol=0, atol=1e-3)
+
+
+def test_a_relabelled_subsample_is_the_expert_from_each_drawn_state(trains):
+    """Constrained docking's DAGGER_STATES: the states drawn are distinct visited states of the
+    flight, drawn by the run's generator (the same seed draws the same states), each labelled with
+    the expert re-solved from it alone, warm-started from what the flight applied from there."""
+    train = trains["docking-constrained"]
+    problem = train.PROBLEM
+    starts, goals = starts_of(train, 2)
+    flight = fly(problem, lambda obs: pd_action(obs, problem), starts, goals, cbf_margin=problem.margin)
+    draw = [train.relabel_sample(flight, 2, torch.Generator().manual_seed(seed)) for seed in (3, 3, 4)]
+    obs, thrust, labels = draw[0]
+    np.testing.assert_array_equal(obs, draw[1][0])
+    assert not np.array_equal(obs, draw[2][0])
+    assert obs.shape == (2, train.OBS_DIM) and thrust.shape == (2, 3) and labels["relabelled_states"] == 2
+    assert (
+        labels["hard_labels"]
+        + labels["soft_labels"]
+        + labels["fallback_labels"]
+        + labels["last_step_law_labels"]
+        == 2
+    )
+    steps = np.rint((1 - obs[:, -1]) * problem.horizon).astype(int)
+    rows = [
+        int(np.flatnonzero((flight.states[:, k] == o[:6]).all(axis=1))[0])
+        for o, k in zip(obs, steps, strict=True)
+    ]
+    assert len({(r, k) for r, k in zip(rows, steps, strict=True)}) == 2
+    expert = RecedingHorizon(problem, on_failure="soft")
+    for o, t, row, k in zip(obs, thrust, rows, steps, strict=True):
+        np.testing.assert_array_equal(o[6:9], goals[row])
+        expected = expert.answer(o[None], [flight.thrust[row, k:]])[0] * problem.u_max
+        np.testing.assert_allclose(t, expected, rtol=0, atol=1e-9)
+    budget = train.Budget(1e-9)
+    budget.start()
+    obs, thrust, labels = train.relabel_sample(flight, 2, torch.Generator().manual_seed(3), budget=budget)
+    assert len(obs) == len(thrust) == labels["relabelled_states"] == 0 and budget.exhausted
+    with pytest.raises(SystemExit, match="DAGGER_STATES must be an int in"):
+        train.check_config({**defaults(train), "DAGGER_STATES": -1})
 
 
 # Docking relabels with its SCP (about 0.2 s a state from an untrained policy's states): one round

@@ -208,3 +208,42 @@ def test_a_warm_start_at_the_optimum_converges_in_one_iteration(docking_starts):
     np.testing.assert_allclose(warm.controls, cold.controls, rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="warm_start"):
         experts.scp_docking(x0, goal, warm_start=cold.controls[:-1])
+
+
+def test_answer_solves_each_unrelated_state_from_its_own_warm_start_and_never_flies_it():
+    """``answer``: DAgger's subsample relabelling. Each row is the expert re-solved from its state
+    over its steps to go, linearised about the warm start given; a row the hard expert cannot answer
+    gets the soft expert's control even under the controller's default on_failure (the warm start
+    is another policy's thrust, not a plan of this expert); the last step is the law's."""
+    problem = RendezvousProblem()
+    far = np.array([400.0, 300.0, 100.0, 0.3, 0.3, 0.1])
+    _, soft = experts.solve_rendezvous_soft(far, problem)
+    mpc = RecedingHorizon(problem)  # on_failure="previous_plan"
+    obs = rendezvous_observation(far, 0, problem.horizon, dtype=np.float64)
+    action = mpc.answer(obs[None], [np.zeros((problem.horizon, 3))])
+    np.testing.assert_allclose(action[0] * problem.u_max, soft[0], atol=1e-9)
+    assert mpc.infeasible[0] == mpc.soft[0] == 1 and mpc.fallbacks[0] == 0
+
+    starts, goals = evaluation_starts("docking", 1, DockingProblem())
+    mpc = RecedingHorizon(CONSTRAINED, on_failure="soft")
+    law, u_max = MinEnergyFeedback(CONSTRAINED), CONSTRAINED.u_max
+    flight = fly(CONSTRAINED, lambda o: np.clip(law.thrust(o) / u_max, -1, 1), starts, goals)
+    steps = np.array([0, 150, CONSTRAINED.horizon - 1])
+    states = docking_observation(
+        flight.states[0, steps], goals[0], steps, CONSTRAINED.horizon, dtype=np.float64
+    )
+    warm = [flight.thrust[0, k:] for k in steps]
+    actions = mpc.answer(states, warm)
+    for row, k in enumerate(steps[:2]):
+        planned = mpc.planned.replace(horizon=CONSTRAINED.horizon - int(k))
+        try:
+            controls = experts.solve_docking(states[row, :6], goals[0], planned, warm_start=warm[row])[1]
+        except experts.Infeasible:
+            controls = experts.soft_docking(states[row, :6], goals[0], planned, warm_start=warm[row]).controls
+        np.testing.assert_allclose(actions[row], np.clip(controls[0] / u_max, -1, 1), atol=1e-9)
+    np.testing.assert_allclose(actions[2:], np.clip(law.thrust(states[2:]) / u_max, -1, 1), atol=1e-12)
+    assert mpc.solves.tolist() == [1, 1, 0] and mpc.plans == [None] * 3  # no row goes on as an episode
+    with pytest.raises(ValueError, match="steps to go"):
+        mpc.answer(states[:1], [flight.thrust[0, 1:]])
+    with pytest.raises(ValueError, match="rows"):
+        mpc.answer(states, warm[:2])

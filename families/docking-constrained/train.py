@@ -81,6 +81,7 @@ BOX_AWARE_LOSS = False  # True: where the expert rides the thrust box, any outpu
 EXPERT_MARGIN = 0.5  # m: the keep-out standoff the demonstrations keep (the filter and the score keep 0.5)
 DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour cloning)
 DAGGER_STARTS = 32  # starts flown per DAgger round (SOCP relabels: 0.2 s or more a state off the expert path)
+DAGGER_STATES = 0  # states relabelled per DAgger round, drawn at random from those flown (0: every one)
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -125,11 +126,13 @@ CONFIG_NAMES = (
     "EXPERT_MARGIN",
     "DAGGER_ITERS",
     "DAGGER_STARTS",
+    "DAGGER_STATES",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual")
 EXPERT_MARGINS = (0.5, 0.75)  # one training pool (and recovery pool) each: prepare.py builds them all
 MAX_DAGGER_ITERS = 8
+MAX_DAGGER_STATES = 4096
 
 
 class Policy(nn.Module):
@@ -243,6 +246,9 @@ def check_config(config: dict) -> None:
     starts, bound = config["DAGGER_STARTS"], POOL_DEMOS if iters else math.inf  # the pool's starts are flown
     if not (isinstance(starts, int) and not isinstance(starts, bool) and 1 <= starts <= bound):
         problems.append(f"DAGGER_STARTS must be an int in [1, {POOL_DEMOS}] with DAgger on")
+    states = config["DAGGER_STATES"]
+    if not (isinstance(states, int) and not isinstance(states, bool) and 0 <= states <= MAX_DAGGER_STATES):
+        problems.append(f"DAGGER_STATES must be an int in [0, {MAX_DAGGER_STATES}]")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -400,9 +406,9 @@ def dagger(
 ):
     """DAGGER_ITERS rounds of DAgger after the first training: fly the policy as it is deployed (the
     filter on if RUNTIME_CBF_FILTER) from the first DAGGER_STARTS starts of the training pool,
-    relabel every state it visits with the expert over the remaining horizon, add those pairs to the
-    training set and train EPOCHS more epochs. Returns the policy, its best loss, the training-set
-    size and the relabelling's counts."""
+    relabel every state it visits (or DAGGER_STATES of them at random) with the expert over the
+    remaining horizon, add those pairs to the training set and train EPOCHS more epochs. Returns the
+    policy, its best loss, the training-set size and the relabelling's counts."""
     pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=expert_problem(config))
     starts, goals = pool.starts[: config["DAGGER_STARTS"]], pool.goals[: config["DAGGER_STARTS"]]
     counts = {"rounds": config["DAGGER_ITERS"], "starts": len(starts), "relabelled_states": 0}
@@ -414,7 +420,12 @@ def dagger(
             break
         started = time.perf_counter()
         flight = fly(policy, starts, goals, config["RUNTIME_CBF_FILTER"])
-        new_obs, new_actions, labels = relabel(flight, expert_problem(config), budget)
+        if config["DAGGER_STATES"]:
+            new_obs, new_actions, labels = relabel_sample(
+                flight, config["DAGGER_STATES"], generator, expert_problem(config), budget
+            )
+        else:
+            new_obs, new_actions, labels = relabel(flight, expert_problem(config), budget)
         counts["relabel_seconds"] += time.perf_counter() - started
         if budget.exhausted:  # spent while relabelling: the round's labels are not trained on
             counts["rounds"] = round_ - 1
@@ -458,6 +469,42 @@ def relabel(
         "last_step_law_labels": n if steps == horizon else 0,
     }
     return np.concatenate(obs), np.concatenate(thrust), labels
+
+
+def relabel_sample(
+    flight: Flight,
+    count: int,
+    generator: torch.Generator,
+    expert_at: DockingProblem = PROBLEM,
+    budget: Budget | None = None,
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """As ``relabel``, at ``count`` of the flight's visited states (steps 0..H-1; all of them if
+    fewer) drawn without replacement by ``generator``, in (start, step) order. Each label is the
+    expert re-solved from its state alone, warm-started from the thrust the flight applied from
+    there: the policy's own filtered path, so the SOCP linearises the keep-out about a route that
+    clears it. A round of every state costs H = 240 solves a start (0.6-1.1 s each from an untrained
+    policy's states, measured), more than a run's budget; a subsample costs what it draws. A
+    ``budget`` spent before a state ends the round there, the states labelled so far returned."""
+    horizon, n = PROBLEM.horizon, len(flight.states)
+    picks = torch.randperm(n * horizon, generator=generator)[:count].sort().values.numpy()
+    rows, steps = picks // horizon, picks % horizon
+    states = docking_observation(
+        flight.states[rows, steps], flight.goals[rows], steps, horizon, dtype=np.float64
+    )
+    expert = RecedingHorizon(expert_at, on_failure="soft")
+    labels = dict.fromkeys(("relabelled_states", "hard_labels", "soft_labels", "fallback_labels"), 0)
+    thrust = []
+    for row, step, obs in zip(rows, steps, states, strict=True):
+        if budget is not None and budget.spent():
+            break
+        thrust.append(expert.answer(obs[None], [flight.thrust[row, step:]])[0] * PROBLEM.u_max)
+        labels["relabelled_states"] += 1
+        labels["hard_labels"] += int(expert.solves.sum() - expert.infeasible.sum())
+        labels["soft_labels"] += int(expert.soft.sum())
+        labels["fallback_labels"] += int(expert.fallbacks.sum())
+    done = len(thrust)
+    labels["last_step_law_labels"] = int(np.sum(steps[:done] == horizon - 1))
+    return states[:done], np.asarray(thrust).reshape(done, 3), labels
 
 
 def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool, dispersions=None) -> Flight:
