@@ -30,6 +30,7 @@ from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
 from autoresearch.campaign import CampaignMeta
 from autoresearch.campaign.audit_log import StepLog, read_audit
+from autoresearch.campaign.meta import EVAL_ALLOWANCE
 from autoresearch.commands.random_arm import print_random
 from autoresearch.execution.executors import LocalExecutor
 from autoresearch.family import Family
@@ -165,6 +166,24 @@ def test_a_family_without_a_sealed_split_gates_as_before_and_says_so(tmp_path):
     assert verified["split"] == "search" and verified["sealed_split"] is False
     assert "test" not in Family.load(family.path).seed_noise
     assert "No sealed split" in write_report(root).read_text()
+
+
+def test_audit_runs_are_granted_the_evaluation_allowance_for_the_sealed_split(tmp_path, monkeypatch):
+    """A reseed also scores the sealed split, which no search run did: it gets the campaign's limit
+    plus its evaluation allowance, so a recipe the search ran near its limit is not refused for the
+    audit's own evaluation; without a sealed split the limit stays the campaign's."""
+    family = sealed_family(tmp_path / "family")
+    root = run_campaign(family, tmp_path / "campaign", ScriptedProposer([P1]), iterations=2, timeout=5.0)
+    measure_noise(family, SERIAL, k=4, campaign=open_campaign(root))
+    campaign = open_campaign(root)
+    assert campaign.timeout == 5.0 and campaign.audit_timeout == 5.0 + EVAL_ALLOWANCE
+    monkeypatch.setenv("AUDIT_SLEEP_S", "6")  # every reseed now outlasts the search's limit
+    verified = verify(campaign, SERIAL, top=1, n_seeds=2)
+    assert [r["status"] for r in verified["candidates"][0]["reseeds"]] == ["ok", "ok"]
+    monkeypatch.delenv("AUDIT_SLEEP_S")
+    plain = copy_family(AUDIT_FAMILY, tmp_path / "plain")
+    root = run_campaign(plain, tmp_path / "plain-campaign", ScriptedProposer([P1]), iterations=1, timeout=5.0)
+    assert open_campaign(root).audit_timeout == 5.0
 
 
 # ----- no test-split value reaches a proposer ----------------------------------------------

@@ -96,8 +96,17 @@ class AuditedCampaign:
 
     @property
     def timeout(self) -> float:
-        """The campaign's hard limit of one run: every audit run gets the same."""
+        """The campaign's hard limit of one of its runs (and of a matched arm's)."""
         return self.meta.run_timeout
+
+    @property
+    def audit_timeout(self) -> float:
+        """The hard limit of one audit run: the campaign's, plus its evaluation allowance where the
+        audit also scores the sealed test split (:func:`audit_split`), which no search run did. Without
+        it a recipe the search ran near its limit fails reseeds for the audit's own evaluation
+        (measured: 2 of 10 reseeds on rendezvous at a 120 s limit, results/keyfree-search)."""
+        extra = self.meta.eval_allowance if audit_split(self.family) is Split.TEST else 0.0
+        return self.timeout + extra
 
     @property
     def time_budget(self) -> float | None:

@@ -52,7 +52,7 @@ def measure_noise(
         raise AuditError(f"--seeds {k}: seed noise needs K >= 2 seeds (one run has no spread to measure)")
     budget = None  # a campaign's time budget: its baseline is measured as the campaign ran it
     if campaign is not None:
-        root, timeout, budget = campaign.step_dir(STEP), campaign.timeout, campaign.time_budget
+        root, timeout, budget = campaign.step_dir(STEP), campaign.audit_timeout, campaign.time_budget
         used = used_seeds(family.default_seed, None, [campaign.root], skip_step=STEP)
     else:
         root, used = (out_dir or default_noise_dir(family)), {family.default_seed}

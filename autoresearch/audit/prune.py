@@ -119,7 +119,7 @@ def _run_trials(campaign: AuditedCampaign, trials: list[Trial], executor: Execut
         executor,
         root / "prune.jsonl",
         root,
-        campaign.timeout,
+        campaign.audit_timeout,
         time_budget=campaign.time_budget,
     )
 

@@ -185,7 +185,7 @@ def judge_on_test(
         executor,
         root / "judge.jsonl",
         root,
-        campaign.timeout,
+        campaign.audit_timeout,
         label="judge",
         time_budget=campaign.time_budget,
     )

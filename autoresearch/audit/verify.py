@@ -304,7 +304,7 @@ def verify(
         executor,
         root / "verify.jsonl",
         root,
-        campaign.timeout,
+        campaign.audit_timeout,
         time_budget=campaign.time_budget,
     )
     for i, candidate in enumerate(candidates):

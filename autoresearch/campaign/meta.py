@@ -143,10 +143,14 @@ class CampaignMeta:
     def run_timeout(self) -> float:
         """The hard wall-clock limit of one of the campaign's runs: its time budget plus the evaluation
         allowance when it grants one (for a family that ignores the budget), else ``timeout_per_run``."""
-        settings = self.settings
         if self.time_budget is not None:
-            return float(self.time_budget) + float(settings.get("eval_allowance", EVAL_ALLOWANCE))
-        return float(settings["timeout_per_run"])
+            return float(self.time_budget) + self.eval_allowance
+        return float(self.settings["timeout_per_run"])
+
+    @property
+    def eval_allowance(self) -> float:
+        """Seconds granted beyond training for loading, scoring and saving (``loop --eval-allowance``)."""
+        return float(self.settings.get("eval_allowance", EVAL_ALLOWANCE))
 
     @property
     def provenance(self) -> dict[str, Any] | None:
