@@ -33,13 +33,14 @@ WITHIN = 0.15  # the target: the new arm's audited best at most 15 % above the h
 def audited_best(campaign: Path) -> dict:
     """The campaign's audited best: the promoted candidate, else the reseeded one (None: not audited)."""
     verify = read_audit(campaign).get("verify") or {}
+    name = campaign.resolve().relative_to(REPO).as_posix()  # no machine's path in summary.json
     candidates = [c for c in verify.get("candidates", []) if "mu_r" in c]
     if not candidates:
-        return {"campaign": campaign.as_posix(), "config": None, "test_metric": None, "audited": False}
+        return {"campaign": name, "config": None, "test_metric": None, "audited": False}
     best = next((c for c in candidates if c["config_id"] == verify.get("promoted")), candidates[0])
     by_split = best.get("by_split") or {}
     return {
-        "campaign": campaign.as_posix(),
+        "campaign": name,
         "config": best["config"],
         "test_metric": (by_split.get("test") or {}).get("mu_r"),
         "test_sd": (by_split.get("test") or {}).get("sigma_r"),
@@ -87,7 +88,8 @@ def main() -> int:
         "target": {"test_metric_at_most": target, "within": WITHIN},
         "arms": arms,
         "new_arm": NEW_ARM,
-        "new_arm_within_target": f"{sum(v <= target for v in values[NEW_ARM])} of {len(arms[NEW_ARM])}",
+        "new_arm_within_target": f"{sum(v <= target for v in values[NEW_ARM])} of {len(values[NEW_ARM])}",
+        "not_audited": {arm: len(rows) - len(values[arm]) for arm, rows in arms.items()},
         "new_arm_minus_random": {
             "mean_difference": float(np.mean(values[NEW_ARM]) - np.mean(values[REFERENCE_ARM]))
             if values[NEW_ARM] and values[REFERENCE_ARM]
@@ -111,7 +113,8 @@ def main() -> int:
             print(f"| {arm} | {i} | {row['campaign']} | {test} | {search} | {row.get('reason', '')} |")
     diff = summary["new_arm_minus_random"]
     print(
-        f"\n{NEW_ARM} within the target in {summary['new_arm_within_target']} repeats; mean difference to random "
+        f"\n{NEW_ARM} within the target in {summary['new_arm_within_target']} audited repeats "
+        f"(not audited yet: {summary['not_audited']}); mean difference to random "
         f"{diff['mean_difference']}, 95 % bootstrap {diff['bootstrap_95']}, separable: {diff['separable']}"
     )
     print(f"written: {root / 'summary.json'}")
