@@ -33,7 +33,12 @@ WITHIN = 0.15  # the target: the new arm's audited best at most 15 % above the h
 def audited_best(campaign: Path) -> dict:
     """The campaign's audited best: the promoted candidate, else the reseeded one (None: not audited)."""
     verify = read_audit(campaign).get("verify") or {}
-    name = campaign.resolve().relative_to(REPO).as_posix()  # no machine's path in summary.json
+    # no machine's path in summary.json: repo-relative where it can be (a ROOT outside keeps its own)
+    name = (
+        campaign.resolve().relative_to(REPO).as_posix()
+        if campaign.resolve().is_relative_to(REPO)
+        else campaign.as_posix()
+    )
     candidates = [c for c in verify.get("candidates", []) if "mu_r" in c]
     if not candidates:
         return {"campaign": name, "config": None, "test_metric": None, "audited": False}
