@@ -220,6 +220,47 @@ def test_a_relabelled_subsample_is_the_expert_from_each_drawn_state(trains):
         train.check_config({**defaults(train), "DAGGER_STATES": -1})
 
 
+def test_a_pairs_loss_weight_scales_its_pull_and_weight_zero_pairs_move_nothing(trains):
+    """Constrained docking's DAGGER_WEIGHT: a batch's loss is the weighted mean of its pairs, so a
+    weight-0 pair's label cannot move the policy, and a weighted pair's label does."""
+    train = trains["docking-constrained"]
+    config = {**defaults(train), "EPOCHS": 3, "BATCH_SIZE": 64, "HIDDEN_DIM": 8, "N_LAYERS": 1}
+    rng = np.random.default_rng(0)
+    obs, actions = rng.normal(size=(40, train.OBS_DIM)), rng.uniform(-1, 1, size=(40, 3))
+    other = actions.copy()
+    other[30:] = -actions[30:]  # the last 10 labels differ
+
+    def trained(labels, weights, epochs=3):
+        torch.manual_seed(0)
+        policy, loss = train.train(
+            {**config, "EPOCHS": epochs},
+            obs,
+            labels,
+            torch.device("cpu"),
+            torch.Generator().manual_seed(0),
+            weights=weights,
+        )
+        return torch.cat([p.detach().flatten() for p in policy.parameters()]), loss
+
+    zero_tail = np.r_[np.ones(30), np.zeros(10)]
+    a, b = trained(actions, zero_tail)[0], trained(other, zero_tail)[0]
+    torch.testing.assert_close(a, b, rtol=0, atol=0)
+    heavy = np.r_[np.ones(30), np.full(10, 50.0)]
+    assert not torch.equal(trained(actions, heavy)[0], trained(other, heavy)[0])
+    # One epoch of one batch: its loss is the weighted mean of the untrained policy's errors.
+    torch.manual_seed(0)
+    untrained = train.build_policy(config, obs.mean(0), obs.std(0))
+    with torch.no_grad():
+        x = torch.as_tensor((obs - obs.mean(0)) / obs.std(0), dtype=torch.float32)
+        error = (untrained(x) - torch.as_tensor(actions / train.PROBLEM.u_max, dtype=torch.float32)).square()
+    first = (error.sum(1).double() * torch.as_tensor(heavy)).sum().item() / heavy.sum()
+    assert trained(actions, heavy, epochs=1)[1] == pytest.approx(first, rel=1e-5)
+    assert trained(actions, None, epochs=1)[1] == pytest.approx(error.sum(1).mean().item(), rel=1e-5)
+    for bad in (-1.0, math.nan, True, 1e4):
+        with pytest.raises(SystemExit, match="DAGGER_WEIGHT must be a number in"):
+            train.check_config({**defaults(train), "DAGGER_WEIGHT": bad})
+
+
 # Docking relabels with its SCP (about 0.2 s a state from an untrained policy's states): one round
 # from one start keeps it near a minute.
 @pytest.mark.parametrize(("name", "iters", "starts"), [("rendezvous", 2, 3), ("docking", 1, 1)])

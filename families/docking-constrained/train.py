@@ -30,7 +30,8 @@ shrinking-horizon minimum-energy law toward the observed goal, whose gain table 
 policy (cwh_envs.controllers.MinEnergyFeedback); DAGGER_ITERS > 0 runs DAgger rounds: fly the
 policy as deployed from training starts, relabel every visited state with the expert over the
 remaining horizon (receding-horizon MPC, cwh_envs.mpc, whose soft re-plan labels the states the
-hard expert cannot answer from), add them to the training set and train on. BOX_AWARE_LOSS stops
+hard expert cannot answer from; DAGGER_STATES of them, drawn at random, if > 0), add them to the
+training set, each weighing DAGGER_WEIGHT in the loss, and train on. BOX_AWARE_LOSS stops
 penalising an output beyond the thrust box where the expert's action is at the box (the env clips
 both to the same thrust). EXPERT_MARGIN solves the demonstrations (and DAgger's labels) with a wider
 keep-out standoff than the filter's 0.5 m, so that a policy cutting the expert's corner by less than
@@ -82,6 +83,7 @@ EXPERT_MARGIN = 0.5  # m: the keep-out standoff the demonstrations keep (the fil
 DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour cloning)
 DAGGER_STARTS = 32  # starts flown per DAgger round (SOCP relabels: 0.2 s or more a state off the expert path)
 DAGGER_STATES = 0  # states relabelled per DAgger round, drawn at random from those flown (0: every one)
+DAGGER_WEIGHT = 1.0  # loss weight of a relabelled pair against a demonstration pair's 1
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -127,12 +129,14 @@ CONFIG_NAMES = (
     "DAGGER_ITERS",
     "DAGGER_STARTS",
     "DAGGER_STATES",
+    "DAGGER_WEIGHT",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual")
 EXPERT_MARGINS = (0.5, 0.75)  # one training pool (and recovery pool) each: prepare.py builds them all
 MAX_DAGGER_ITERS = 8
 MAX_DAGGER_STATES = 4096
+MAX_DAGGER_WEIGHT = 1000.0
 
 
 class Policy(nn.Module):
@@ -249,6 +253,11 @@ def check_config(config: dict) -> None:
     states = config["DAGGER_STATES"]
     if not (isinstance(states, int) and not isinstance(states, bool) and 0 <= states <= MAX_DAGGER_STATES):
         problems.append(f"DAGGER_STATES must be an int in [0, {MAX_DAGGER_STATES}]")
+    weight = config["DAGGER_WEIGHT"]
+    if not (
+        isinstance(weight, int | float) and not isinstance(weight, bool) and 0 <= weight <= MAX_DAGGER_WEIGHT
+    ):
+        problems.append(f"DAGGER_WEIGHT must be a number in [0, {MAX_DAGGER_WEIGHT:g}]")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -337,10 +346,12 @@ def train(
     policy: Policy | None = None,
     first_epoch: int = 0,
     budget: Budget | None = None,
+    weights: np.ndarray | None = None,
 ):
     """MSE behaviour cloning (Eq. bc_loss) for EPOCHS epochs; returns the policy and the best
     epoch-mean loss. ``policy`` goes on training a policy (a DAgger round: its standardisation is
     kept), its epochs numbered from ``first_epoch``. A spent ``budget`` ends it at that step.
+    ``weights`` (one per pair; None: all 1) makes each batch's loss the weighted mean of its pairs.
 
     ``report(epoch, policy)`` is called, the policy in eval mode, at PROGRESS_POINTS evenly spaced
     epochs of the whole run (every DAgger round included).
@@ -354,6 +365,7 @@ def train(
     x = torch.as_tensor((obs - mean) / std, dtype=torch.float32, device=device)
     raw = torch.as_tensor(obs, dtype=torch.float64, device=device) if policy.residual else None
     y = torch.as_tensor(actions / PROBLEM.u_max, dtype=torch.float32, device=device)
+    w = None if weights is None else torch.as_tensor(weights, dtype=torch.float32, device=device)
     optimizer = torch.optim.AdamW(
         policy.parameters(), lr=config["LEARNING_RATE"], weight_decay=config["WEIGHT_DECAY"]
     )
@@ -375,7 +387,11 @@ def train(
             error = policy(x[batch], None if raw is None else raw[batch]) - y[batch]
             if config["BOX_AWARE_LOSS"]:
                 error = box_aware(error, y[batch])
-            loss = error.square().sum(dim=1).mean()
+            per_pair = error.square().sum(dim=1)
+            if w is None:
+                loss = per_pair.mean()
+            else:  # a batch of weight-0 pairs alone contributes nothing (0 / tiny)
+                loss = (per_pair * w[batch]).sum() / w[batch].sum().clamp_min(1e-12)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             nn.utils.clip_grad_norm_(policy.parameters(), config["GRAD_CLIP"])
@@ -407,13 +423,16 @@ def dagger(
     """DAGGER_ITERS rounds of DAgger after the first training: fly the policy as it is deployed (the
     filter on if RUNTIME_CBF_FILTER) from the first DAGGER_STARTS starts of the training pool,
     relabel every state it visits (or DAGGER_STATES of them at random) with the expert over the
-    remaining horizon, add those pairs to the training set and train EPOCHS more epochs. Returns the
-    policy, its best loss, the training-set size and the relabelling's counts."""
+    remaining horizon, add those pairs to the training set, each weighing DAGGER_WEIGHT in the loss
+    (a demonstration pair weighs 1), and train EPOCHS more epochs. Returns the policy, its best
+    loss, the training-set size and the relabelling's counts."""
     pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=expert_problem(config))
     starts, goals = pool.starts[: config["DAGGER_STARTS"]], pool.goals[: config["DAGGER_STARTS"]]
     counts = {"rounds": config["DAGGER_ITERS"], "starts": len(starts), "relabelled_states": 0}
     counts |= {"hard_labels": 0, "soft_labels": 0, "fallback_labels": 0, "last_step_law_labels": 0}
     counts["relabel_seconds"] = 0.0
+    # Weight 1 keeps the unweighted loss, bit for bit: the runs from before the key reproduce.
+    weights = None if config["DAGGER_WEIGHT"] == 1 else np.ones(len(obs))
     for round_ in range(1, config["DAGGER_ITERS"] + 1):
         if budget.spent():
             counts["rounds"] = round_ - 1
@@ -434,8 +453,19 @@ def dagger(
         for key, value in labels.items():
             counts[key] += value
         obs, actions = np.concatenate([obs, new_obs]), np.concatenate([actions, new_actions])
+        if weights is not None:
+            weights = np.concatenate([weights, np.full(len(new_obs), float(config["DAGGER_WEIGHT"]))])
         policy, best_loss = train(
-            config, obs, actions, device, generator, report, policy, round_ * config["EPOCHS"], budget
+            config,
+            obs,
+            actions,
+            device,
+            generator,
+            report,
+            policy,
+            round_ * config["EPOCHS"],
+            budget,
+            weights,
         )
     counts["relabel_seconds"] = round(counts["relabel_seconds"], 3)
     return policy, best_loss, len(obs), counts
