@@ -9,8 +9,9 @@
 # summary.json (per arm and repeat: the campaign, the audited best's config and test_metric; the
 # target check against the hand recipe, and the new arm against random with a bootstrap interval).
 # The campaigns run one after another (each takes both cores), the arms interleaved, so a stopped
-# run leaves a balanced comparison; run it again to resume.
-#   bash results/keyfree-search/run.sh > results/logs/keyfree_search.txt 2>&1
+# run leaves a balanced comparison; run it again to resume (a campaign whose verification finished
+# is skipped: running it again would only re-stamp audit.json's provenance with a later commit).
+#   bash results/keyfree-search/run.sh >> results/logs/keyfree_search.txt 2>&1
 # Note: verify promotes a passing best into families/rendezvous (family.json and ledger.json) when it
 # is more reproducible than the family's best (the hand recipe): that is the audit's job; review it.
 set -euo pipefail
@@ -33,11 +34,18 @@ arm_flags() {
   esac
 }
 python families/rendezvous/prepare.py --warm-cache  # its data sets, once (a no-op when cached)
+verified() {  # the campaign's audit.json holds a finished verification
+  python -c 'import json, sys; sys.exit(json.load(open(sys.argv[1])).get("verify", {}).get("status") != "done")' \
+    "$1/audit.json" 2>/dev/null
+}
 start=$SECONDS
 for ((r = 0; r < REPEATS; r++)); do
   for arm in random tpe tpe-hyperband; do
     dir="$ROOT/$arm/repeat-$(printf %02d "$r")"
-    if [ -f "$dir/campaign.json" ]; then
+    if verified "$dir"; then
+      echo "[keyfree-search] $dir already verified"
+      continue
+    elif [ -f "$dir/campaign.json" ]; then
       autoresearch loop --resume --campaign "$dir" --plain
     else
       # shellcheck disable=SC2046
