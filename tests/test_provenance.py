@@ -117,6 +117,16 @@ def test_every_audit_step_records_its_provenance_and_a_rerun_compares(tmp_path):
     assert refused.returncode == 2
     assert "audit.json verify: family program.md: sha256" in refused.stderr
     assert "audit.json noise: family program.md" in refused.stderr
+    # Re-run without --strict-provenance: every trial is already logged, so nothing is measured
+    # again, and the parts keep the provenance they were measured under (not the edited family's).
+    before = read_audit(root)
+    rerun = cli(*verify)
+    assert rerun.returncode == 0 and "0 of 2 runs to do" in rerun.stderr
+    measure_noise(family, LocalExecutor(1), k=4, campaign=open_campaign(root))
+    after = read_audit(root)
+    for step in ("noise", "verify"):
+        assert after[step]["provenance"] == before[step]["provenance"] != provenance.collect(family.path)
+    assert after["noise"]["measured_at"] == before["noise"]["measured_at"]
 
 
 @pytest.mark.slow

@@ -94,6 +94,15 @@ class AuditedCampaign:
     def step_dir(self, step: str) -> Path:
         return self.paths.step_dir(step)
 
+    def step_provenance(self, step: str, fresh: bool) -> dict[str, Any] | None:
+        """What the part of ``step`` records it ran under: this audit's provenance, unless the step
+        runs nothing new (``fresh`` False) and its earlier part records one: re-reading a finished
+        step's log measures nothing again, so the commit that measured it stays."""
+        earlier = read_audit(self.root).get(step)
+        if not fresh and isinstance(earlier, dict) and earlier.get("provenance"):
+            return earlier["provenance"]
+        return self.provenance
+
     @property
     def timeout(self) -> float:
         """The campaign's hard limit of one of its runs (and of a matched arm's)."""

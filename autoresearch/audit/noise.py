@@ -20,7 +20,7 @@ from autoresearch import ledger
 from autoresearch.audit import stats
 from autoresearch.audit.inputs import AuditedCampaign, AuditError
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.audit.trials import Trial, pending, run_trials
 from autoresearch.campaign import portable_path
 from autoresearch.campaign.audit_log import read_audit, write_step
 from autoresearch.execution.executors import Executor
@@ -57,12 +57,15 @@ def measure_noise(
     else:
         root, used = (out_dir or default_noise_dir(family)), {family.default_seed}
     seeds = fresh_seeds(used, k)
+    baseline = family.baseline_config
+    trials = [Trial(f"noise-s{seed}", baseline, seed) for seed in seeds]
+    earlier = None  # a campaign's finished noise step that this re-run only re-reads
     if campaign is not None:
+        if not pending(family, trials, root / "noise.jsonl"):
+            earlier = read_audit(campaign.root).get(STEP)
         write_step(
             campaign.root, STEP, {"status": "running", "seeds": seeds, "runs_dir": portable_path(root)}
         )
-    baseline = family.baseline_config
-    trials = [Trial(f"noise-s{seed}", baseline, seed) for seed in seeds]
     rows = run_trials(family, trials, executor, root / "noise.jsonl", root, timeout, time_budget=budget)
     ok = [r for r in rows if r.ok]
     failed = [{"seed": r.seed, "reason": r.reason} for r in rows if not r.ok]
@@ -77,7 +80,8 @@ def measure_noise(
         **search,
         "seeds": [r.seed for r in ok],
         "metric": family.metric,
-        "measured_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "measured_at": (earlier or {}).get("measured_at")
+        or datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "runs_dir": portable_path(root),
         "failed": failed,
         "pinned": pins(family),
@@ -89,7 +93,12 @@ def measure_noise(
         write_step(
             campaign.root,
             STEP,
-            {"status": "done", "source": "measured", **noise, "provenance": campaign.provenance},
+            {
+                "status": "done",
+                "source": "measured",
+                **noise,
+                "provenance": (earlier or {}).get("provenance") or campaign.provenance,
+            },
         )
     return noise
 

@@ -78,6 +78,26 @@ def run_trial(executor: Executor, spec: RunSpec, trial: Trial) -> TrialRow:
     return trial_row(family, trial, executor.run(spec), spec.split)
 
 
+def _logged(trials: Sequence[Trial], log: StepLog, split: Split) -> dict[str, TrialRow]:
+    """The rows of ``log`` that already answer ``trials``, by key. A row counts only for the
+    configuration and split it ran: a key reused for another configuration (e.g. a re-run after the
+    promoted configuration changed) runs again."""
+    wanted = {t.key: t.config for t in trials}
+    return {
+        row.key: row
+        for row in log.read()
+        if row.ok and row.key in wanted and row.config == wanted[row.key] and row.split is split
+    }
+
+
+def pending(
+    family: Family, trials: Sequence[Trial], log_path: Path, split: Split | None = None
+) -> list[Trial]:
+    """The trials :func:`run_trials` would run now (those its log does not answer yet)."""
+    done = _logged(trials, StepLog(log_path), split or audit_split(family))
+    return [t for t in trials if t.key not in done]
+
+
 def run_trials(
     family: Family,
     trials: Sequence[Trial],
@@ -102,15 +122,8 @@ def run_trials(
     if len(set(keys)) != len(keys):
         raise ValueError("run_trials: trial keys must be unique")
     root.mkdir(parents=True, exist_ok=True)
-    log = StepLog(log_path)
-    wanted, split = {t.key: t.config for t in trials}, split or audit_split(family)
-    # A row counts only for the configuration and split it ran: a key reused for another
-    # configuration (e.g. a re-run after the promoted configuration changed) runs again.
-    done = {
-        row.key: row
-        for row in log.read()
-        if row.ok and row.key in wanted and row.config == wanted[row.key] and row.split is split
-    }
+    log, split = StepLog(log_path), split or audit_split(family)
+    done = _logged(trials, log, split)
     todo = [t for t in trials if t.key not in done]
     runs_log, root = (runs_log or root / "runs.jsonl").resolve(), root.resolve()
 

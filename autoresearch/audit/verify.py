@@ -27,7 +27,7 @@ from autoresearch import ledger
 from autoresearch.audit import stats, tails
 from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, gate_split, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.audit.trials import Trial, pending, run_trials
 from autoresearch.campaign import Record
 from autoresearch.campaign.audit_log import TrialRow, write_step
 from autoresearch.execution.executors import Executor
@@ -293,11 +293,12 @@ def verify(
         return part
     used = used_seeds(family.default_seed, family.seed_noise, [campaign.root], skip_step=STEP)
     part["seeds"] = fresh_seeds(used, n_seeds)
-    write_step(campaign.root, STEP, {**part, "status": "running"})
     trials = [
         Trial(f"verify-{c['config_id']}-s{s}", c["config"], s) for c in candidates for s in part["seeds"]
     ]
     root = campaign.step_dir(STEP)
+    part["provenance"] = campaign.step_provenance(STEP, bool(pending(family, trials, root / "verify.jsonl")))
+    write_step(campaign.root, STEP, {**part, "status": "running"})
     rows = run_trials(
         family,
         trials,
