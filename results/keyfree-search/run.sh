@@ -10,7 +10,7 @@
 # target check against the hand recipe, and the new arm against random with a bootstrap interval).
 # The campaigns run one after another (each takes both cores), the arms interleaved, so a stopped
 # run leaves a balanced comparison; run it again to resume (a campaign whose verification finished
-# is skipped: running it again would only re-stamp audit.json's provenance with a later commit).
+# is skipped: resuming it would only add a session to its campaign.json).
 #   bash results/keyfree-search/run.sh >> results/logs/keyfree_search.txt 2>&1
 # Note: verify promotes a passing best into families/rendezvous (family.json and ledger.json) when it
 # is more reproducible than the family's best (the hand recipe): that is the audit's job; review it.
