@@ -94,14 +94,13 @@ class AuditedCampaign:
     def step_dir(self, step: str) -> Path:
         return self.paths.step_dir(step)
 
-    def step_provenance(self, step: str, fresh: bool) -> dict[str, Any] | None:
-        """What the part of ``step`` records it ran under: this audit's provenance, unless the step
-        runs nothing new (``fresh`` False) and its earlier part records one: re-reading a finished
-        step's log measures nothing again, so the commit that measured it stays."""
-        earlier = read_audit(self.root).get(step)
-        if not fresh and isinstance(earlier, dict) and earlier.get("provenance"):
-            return earlier["provenance"]
-        return self.provenance
+    def rereading(self, step: str, fresh: bool) -> dict[str, Any]:
+        """The earlier part of ``step`` when this run of it measures nothing new (``fresh`` False: every
+        trial already logged), else {}. Its provenance (and when it was measured) stays: re-reading
+        a finished step's log does not re-stamp it with a later commit. Read before the step writes
+        its "running" part over it."""
+        earlier = read_audit(self.root).get(step) if not fresh else None
+        return earlier if isinstance(earlier, dict) else {}
 
     @property
     def timeout(self) -> float:

@@ -59,10 +59,9 @@ def measure_noise(
     seeds = fresh_seeds(used, k)
     baseline = family.baseline_config
     trials = [Trial(f"noise-s{seed}", baseline, seed) for seed in seeds]
-    earlier = None  # a campaign's finished noise step that this re-run only re-reads
+    earlier = {}  # a campaign's finished noise step that this re-run only re-reads
     if campaign is not None:
-        if not pending(family, trials, root / "noise.jsonl"):
-            earlier = read_audit(campaign.root).get(STEP)
+        earlier = campaign.rereading(STEP, bool(pending(family, trials, root / "noise.jsonl")))
         write_step(
             campaign.root, STEP, {"status": "running", "seeds": seeds, "runs_dir": portable_path(root)}
         )
@@ -80,8 +79,7 @@ def measure_noise(
         **search,
         "seeds": [r.seed for r in ok],
         "metric": family.metric,
-        "measured_at": (earlier or {}).get("measured_at")
-        or datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "measured_at": earlier.get("measured_at") or datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "runs_dir": portable_path(root),
         "failed": failed,
         "pinned": pins(family),
@@ -97,7 +95,7 @@ def measure_noise(
                 "status": "done",
                 "source": "measured",
                 **noise,
-                "provenance": (earlier or {}).get("provenance") or campaign.provenance,
+                "provenance": earlier.get("provenance") or campaign.provenance,
             },
         )
     return noise

@@ -297,7 +297,8 @@ def verify(
         Trial(f"verify-{c['config_id']}-s{s}", c["config"], s) for c in candidates for s in part["seeds"]
     ]
     root = campaign.step_dir(STEP)
-    part["provenance"] = campaign.step_provenance(STEP, bool(pending(family, trials, root / "verify.jsonl")))
+    earlier = campaign.rereading(STEP, bool(pending(family, trials, root / "verify.jsonl")))
+    part["provenance"] = earlier.get("provenance") or campaign.provenance
     write_step(campaign.root, STEP, {**part, "status": "running"})
     rows = run_trials(
         family,
