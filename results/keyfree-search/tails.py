@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -28,16 +26,18 @@ from pathlib import Path
 import numpy as np
 
 from autoresearch.campaign.audit_log import StepLog, TrialRow
-from autoresearch.editable import patch
+from autoresearch.execution.runner import run_locally
+from autoresearch.execution.spec import RunSpec
+from autoresearch.family import Family
 from autoresearch.splits import Split
 from cwh_envs.datasets import evaluation_set
 from cwh_envs.prepare import load_train
 
 REPO = Path(__file__).resolve().parents[2]
 FAMILY = REPO / "families" / "rendezvous"
-HAND = (
-    REPO / "results" / "sealed" / "rendezvous" / "6a38eb7f"
-)  # the hand recipe, re-measured on the test split
+# the hand recipe, re-measured on the test split
+HAND = REPO / "results" / "sealed" / "rendezvous" / "6a38eb7f"
+TIMEOUT = 3600.0  # s: a retrained reseed's hard limit (they took about 100 s)
 
 
 def tails(distances: np.ndarray) -> dict:
@@ -49,15 +49,16 @@ def tails(distances: np.ndarray) -> dict:
 
 
 def retrain(row: TrialRow, run: Path) -> None:
-    """The logged reseed trained again into ``run`` (its own patched train.py, as the audit ran it)."""
-    run.mkdir(parents=True, exist_ok=True)
-    script = run / "train.py"
-    script.write_text(patch((FAMILY / "train.py").read_text(), row.config))
-    command = [sys.executable, str(script), "--seed", str(row.seed), "--eval-split", "test"]
-    command += ["--out", str(run / "out"), "--runs-log", str(run / "runs.jsonl")]
-    with open(run / "stdout.txt", "w") as out:
-        env = {**os.environ, "OMP_NUM_THREADS": "1"}
-        subprocess.run(command, cwd=FAMILY, stdout=out, stderr=subprocess.STDOUT, env=env, check=True)
+    """The logged reseed trained again into ``run`` by the runner the audit uses, on the test split.
+    Keys its configuration predates (the algorithm axis) take the family's baseline values, which
+    are the editable defaults it ran with."""
+    family = Family.load(FAMILY)
+    config = {**family.baseline_config, **row.config}
+    result = run_locally(
+        RunSpec(family, config, row.key, row.seed, run, run / "runs.jsonl", TIMEOUT, Split.TEST)
+    )
+    if not result.ok:
+        raise SystemExit(f"{run}: the retrained reseed did not finish ({result.status}: {result.reason})")
 
 
 def reseeds(log: Path, prefix: str, run_root: Path, train, test, retraining: bool) -> dict | None:
