@@ -12,6 +12,8 @@
 # run leaves a balanced comparison; run it again to resume (a campaign whose verification finished
 # is skipped: resuming it would only add a session to its campaign.json).
 #   bash results/keyfree-search/run.sh >> results/logs/keyfree_search.txt 2>&1
+# A session too short for a whole repeat runs some arms of it, e.g.
+#   REPEATS=2 ARMS="random tpe-hyperband" bash results/keyfree-search/run.sh >> ... 2>&1
 # Note: verify promotes a passing best into families/rendezvous (family.json and ledger.json) when it
 # is more reproducible than the family's best (the hand recipe): that is the audit's job; review it.
 set -euo pipefail
@@ -20,6 +22,7 @@ export OMP_NUM_THREADS=1 MPLBACKEND=Agg PATH="$PWD/.venv/bin:$PATH"
 ROOT=${ROOT:-results/keyfree-search}
 SECONDS_PER_CAMPAIGN=${SECONDS_PER_CAMPAIGN:-2700}
 REPEATS=${REPEATS:-3}
+ARMS=${ARMS:-random tpe tpe-hyperband}  # a subset runs only those arms (the rest wait for a later resume)
 SEEDS=${SEEDS:-10}
 SPACE=${SPACE:-random-range}  # the space of the earlier key-free comparisons (issue 13)
 TIMEOUT=${TIMEOUT:-120}       # random and TPE: a run's hard limit, as in those comparisons
@@ -40,7 +43,7 @@ verified() {  # the campaign's audit.json holds a finished verification
 }
 start=$SECONDS
 for ((r = 0; r < REPEATS; r++)); do
-  for arm in random tpe tpe-hyperband; do
+  for arm in $ARMS; do
     dir="$ROOT/$arm/repeat-$(printf %02d "$r")"
     if verified "$dir"; then
       echo "[keyfree-search] $dir already verified"
