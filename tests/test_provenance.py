@@ -19,6 +19,8 @@ from loop_helpers import copy_toy
 from autoresearch import provenance
 from autoresearch.audit.inputs import open_campaign
 from autoresearch.audit.noise import measure_noise
+from autoresearch.audit.prune import prune
+from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.campaign.audit_log import read_audit
 from autoresearch.execution.executors import LocalExecutor
 from autoresearch.execution.runner import run_locally
@@ -110,8 +112,11 @@ def test_every_audit_step_records_its_provenance_and_a_rerun_compares(tmp_path):
     measure_noise(family, LocalExecutor(1), k=4, campaign=open_campaign(root))
     verify = ["verify", "--campaign", str(root), "--top", "1", "--seeds", "2"]
     assert cli(*verify).returncode == 0
+    prune(open_campaign(root), LocalExecutor(1))
+    run_random_arm(open_campaign(root), LocalExecutor(1), count=3)
     audit = read_audit(root)
-    assert audit["noise"]["provenance"] == audit["verify"]["provenance"] == provenance.collect(family.path)
+    steps = ("noise", "verify", "prune", "random")
+    assert all(audit[step]["provenance"] == provenance.collect(family.path) for step in steps)
     (family.path / "program.md").write_text((family.path / "program.md").read_text() + "\nEdited.\n")
     refused = cli(*verify, "--strict-provenance")
     assert refused.returncode == 2
@@ -123,10 +128,16 @@ def test_every_audit_step_records_its_provenance_and_a_rerun_compares(tmp_path):
     rerun = cli(*verify)
     assert rerun.returncode == 0 and "0 of 2 runs to do" in rerun.stderr
     measure_noise(family, LocalExecutor(1), k=4, campaign=open_campaign(root))
+    prune(open_campaign(root), LocalExecutor(1))
+    run_random_arm(open_campaign(root), LocalExecutor(1), count=3)
     after = read_audit(root)
-    for step in ("noise", "verify"):
+    for step in steps:
         assert after[step]["provenance"] == before[step]["provenance"] != provenance.collect(family.path)
     assert after["noise"]["measured_at"] == before["noise"]["measured_at"]
+    # A re-run that measures something new (the random arm drawn again) records what it ran under.
+    shutil.rmtree(tmp_path / "campaign-random")
+    run_random_arm(open_campaign(root), LocalExecutor(1), count=3)
+    assert read_audit(root)["random"]["provenance"] == provenance.collect(family.path)
 
 
 @pytest.mark.slow

@@ -75,6 +75,26 @@ def seed_noise(family: Family, split: Split = Split.SEARCH) -> dict[str, Any]:
     return family.seed_noise if split is Split.SEARCH else family.seed_noise[Split.TEST.value]
 
 
+class Rereading:
+    """A step's earlier part and the row counts of its append-only logs when it started again. A re-run
+    that appends no row (every trial already logged) only re-read the finished step: its part keeps the
+    provenance it was measured under, and when, instead of being re-stamped with a later commit."""
+
+    def __init__(self, earlier: Any, logs: tuple[Path, ...]) -> None:
+        self.earlier = earlier if isinstance(earlier, dict) and earlier.get("status") == "done" else {}
+        self._logs = logs
+        self._rows = self._count()
+
+    def _count(self) -> list[int]:
+        return [path.read_bytes().count(b"\n") if path.exists() else 0 for path in self._logs]
+
+    def kept(self, key: str, current: Any) -> Any:
+        """The earlier part's ``key`` if nothing new was measured since, else ``current``."""
+        if self._count() == self._rows and self.earlier.get(key) is not None:
+            return self.earlier[key]
+        return current
+
+
 @dataclass(frozen=True)
 class AuditedCampaign:
     store: Campaign
@@ -94,13 +114,10 @@ class AuditedCampaign:
     def step_dir(self, step: str) -> Path:
         return self.paths.step_dir(step)
 
-    def rereading(self, step: str, fresh: bool) -> dict[str, Any]:
-        """The earlier part of ``step`` when this run of it measures nothing new (``fresh`` False: every
-        trial already logged), else {}. Its provenance (and when it was measured) stays: re-reading
-        a finished step's log does not re-stamp it with a later commit. Read before the step writes
-        its "running" part over it."""
-        earlier = read_audit(self.root).get(step) if not fresh else None
-        return earlier if isinstance(earlier, dict) else {}
+    def rereading(self, step: str, *logs: Path) -> Rereading:
+        """``step``'s earlier part, to be kept if this run of it measures nothing new (none of its
+        append-only ``logs`` grows). Call before the step writes its "running" part over it."""
+        return Rereading(read_audit(self.root).get(step), logs)
 
     @property
     def timeout(self) -> float:

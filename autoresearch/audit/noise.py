@@ -18,9 +18,9 @@ from typing import Any
 
 from autoresearch import ledger
 from autoresearch.audit import stats
-from autoresearch.audit.inputs import AuditedCampaign, AuditError
+from autoresearch.audit.inputs import AuditedCampaign, AuditError, Rereading
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, pending, run_trials
+from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.campaign import portable_path
 from autoresearch.campaign.audit_log import read_audit, write_step
 from autoresearch.execution.executors import Executor
@@ -59,9 +59,9 @@ def measure_noise(
     seeds = fresh_seeds(used, k)
     baseline = family.baseline_config
     trials = [Trial(f"noise-s{seed}", baseline, seed) for seed in seeds]
-    earlier = {}  # a campaign's finished noise step that this re-run only re-reads
+    earlier = Rereading(None, ())  # a campaign's finished noise step, kept if this run only re-reads it
     if campaign is not None:
-        earlier = campaign.rereading(STEP, bool(pending(family, trials, root / "noise.jsonl")))
+        earlier = campaign.rereading(STEP, root / "noise.jsonl")
         write_step(
             campaign.root, STEP, {"status": "running", "seeds": seeds, "runs_dir": portable_path(root)}
         )
@@ -79,7 +79,7 @@ def measure_noise(
         **search,
         "seeds": [r.seed for r in ok],
         "metric": family.metric,
-        "measured_at": earlier.get("measured_at") or datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "measured_at": earlier.kept("measured_at", datetime.now(timezone.utc).isoformat(timespec="seconds")),
         "runs_dir": portable_path(root),
         "failed": failed,
         "pinned": pins(family),
@@ -95,7 +95,7 @@ def measure_noise(
                 "status": "done",
                 "source": "measured",
                 **noise,
-                "provenance": earlier.get("provenance") or campaign.provenance,
+                "provenance": earlier.kept("provenance", campaign.provenance),
             },
         )
     return noise

@@ -38,7 +38,7 @@ from typing import Any
 
 from autoresearch import ledger
 from autoresearch.audit import stats, tails
-from autoresearch.audit.inputs import AuditedCampaign, AuditError, config_id
+from autoresearch.audit.inputs import AuditedCampaign, AuditError, Rereading, config_id
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.audit.verify import STEP as VERIFY_STEP
@@ -258,6 +258,7 @@ def prune(
         "reverify_seeds": reverify_seeds,
         "provenance": campaign.provenance,
     }
+    earlier = campaign.rereading(rule.key, campaign.step_dir(STEP) / "prune.jsonl")
     write_step(campaign.root, rule.key, {**part, "status": "running"})
     decisions = leave_one_out(
         campaign, executor, full, unit["sigma"], per_edit, paired=rule.paired, split=split
@@ -274,7 +275,7 @@ def prune(
     )
     if not dropped:
         part["reason"] = "every edit is load-bearing: nothing to prune"
-        _finish(campaign, rule, part)
+        _finish(campaign, rule, part, earlier)
         return part
 
     pruned_config = {**full["config"], **{name: family.baseline_config[name] for name in dropped}}
@@ -317,11 +318,15 @@ def prune(
             f"the dropped group {', '.join(dropped)} matters jointly: the pruned recipe fails re-verification "
             f"({lost}); the full configuration is kept"
         )
-    _finish(campaign, rule, part)
+    _finish(campaign, rule, part, earlier)
     return part
 
 
-def _finish(campaign: AuditedCampaign, rule: Rule, part: dict[str, Any]) -> None:
+def _finish(
+    campaign: AuditedCampaign, rule: Rule, part: dict[str, Any], earlier: Rereading | None = None
+) -> None:
+    if earlier is not None:  # a re-run that measured nothing new keeps what the step was measured under
+        part["provenance"] = earlier.kept("provenance", part["provenance"])
     if not part.get("promotes_pruned"):
         _restore_full(campaign)
     write_step(campaign.root, rule.key, part)

@@ -150,6 +150,8 @@ def run_random_arm(
     else:
         arm.root.mkdir(parents=True, exist_ok=True)
         CampaignMeta.new(family, PROPOSER, settings).write(arm.root)
+    step = step_name(matched_range)
+    earlier = campaign.rereading(step, arm.root / "proposals.jsonl", campaign.step_dir(step) / "judge.jsonl")
     # A best-of-N: every draw runs, whatever the target, the plateau or a run of failures says.
     budgets = Budgets(max_iters=count, max_failures=count + 1, plateau_window=count + 1)
     limits = {"timeout_per_run": campaign.timeout, "time_budget": campaign.time_budget}
@@ -162,7 +164,10 @@ def run_random_arm(
     if split is Split.TEST:  # the paper's verdict stays beside the one on the sealed split
         part["search_verdict"] = {"verdict": part["verdict"], "units": part["units"]}
         part.update(judge_on_test(campaign, executor, state, matched_range))
-    write_step(campaign.root, step_name(matched_range), part)
+    part["provenance"] = earlier.kept(
+        "provenance", part["provenance"]
+    )  # a resumed finished arm keeps its own
+    write_step(campaign.root, step, part)
     return part
 
 

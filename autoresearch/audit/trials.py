@@ -90,14 +90,6 @@ def _logged(trials: Sequence[Trial], log: StepLog, split: Split) -> dict[str, Tr
     }
 
 
-def pending(
-    family: Family, trials: Sequence[Trial], log_path: Path, split: Split | None = None
-) -> list[Trial]:
-    """The trials :func:`run_trials` would run now (those its log does not answer yet)."""
-    done = _logged(trials, StepLog(log_path), split or audit_split(family))
-    return [t for t in trials if t.key not in done]
-
-
 def run_trials(
     family: Family,
     trials: Sequence[Trial],

@@ -27,7 +27,7 @@ from autoresearch import ledger
 from autoresearch.audit import stats, tails
 from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, gate_split, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
-from autoresearch.audit.trials import Trial, pending, run_trials
+from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.campaign import Record
 from autoresearch.campaign.audit_log import TrialRow, write_step
 from autoresearch.execution.executors import Executor
@@ -297,8 +297,7 @@ def verify(
         Trial(f"verify-{c['config_id']}-s{s}", c["config"], s) for c in candidates for s in part["seeds"]
     ]
     root = campaign.step_dir(STEP)
-    earlier = campaign.rereading(STEP, bool(pending(family, trials, root / "verify.jsonl")))
-    part["provenance"] = earlier.get("provenance") or campaign.provenance
+    earlier = campaign.rereading(STEP, root / "verify.jsonl")
     write_step(campaign.root, STEP, {**part, "status": "running"})
     rows = run_trials(
         family,
@@ -321,6 +320,7 @@ def verify(
     part.update(
         status="done",
         reason=f"{len(passing)} of {len(candidates)} candidate(s) passed the gate on the {split} split",
+        provenance=earlier.kept("provenance", campaign.provenance),
     )
     write_step(campaign.root, STEP, part)
     return part
