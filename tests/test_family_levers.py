@@ -1,6 +1,7 @@
 """The families' algorithm axis (POLICY_FORM, RESIDUAL_SCALE, DAGGER_ITERS, DAGGER_STARTS): the
-defaults are the paper's behaviour cloning, a residual with a zero correction is the closed-form
-law, and DAgger's labels are the expert re-solved from the visited states."""
+defaults are the paper's behaviour cloning, a residual or costate policy with a zero correction is
+the closed-form law (and a costate policy at the expert's multiplier the expert), and DAgger's
+labels are the expert re-solved from the visited states."""
 
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from cwh_envs import experts
 from cwh_envs.controllers import MinEnergyFeedback, pd_action
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.mpc import RecedingHorizon
+from cwh_envs.observations import rendezvous_observation
 from cwh_envs.prepare import DataNeeds, load_train, required_sets
 from cwh_envs.rollout import fly
 
@@ -98,18 +100,73 @@ def test_a_residual_with_a_zero_correction_flies_the_closed_form_law(trains, nam
     )
 
 
-def test_the_onnx_export_carries_the_law(trains, tmp_path):
+def test_a_costate_policy_is_the_law_at_zero_and_the_expert_at_the_experts_multiplier(trains):
+    """Rendezvous' POLICY_FORM = "costate": with a zero correction it flies the closed-form law; the
+    expert's controls are clip(-Gamma^T nu) for one nu along its whole trajectory, and at the
+    correction that gives that nu the policy's action is the expert's and PlanLoss vanishes, while
+    the law's (zero correction) does not where the box binds."""
+    train = trains["rendezvous"]
+    problem, horizon = train.PROBLEM, train.PROBLEM.horizon
+    config = {**defaults(train), "POLICY_FORM": "costate", "HIDDEN_DIM": 8, "N_LAYERS": 1}
+    policy = train.build_policy(config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5)
+    with torch.no_grad():
+        policy.net[-1].weight.zero_()
+        policy.net[-1].bias.zero_()
+    starts, _ = starts_of(train, 8)
+    law = MinEnergyFeedback(problem)
+    learned, closed_form = fly(problem, policy.act, starts), fly(problem, law, starts)
+    np.testing.assert_allclose(learned.states, closed_form.states, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(learned.thrust, closed_form.thrust, rtol=0, atol=1e-12)
+
+    plans = np.stack([experts.solve_rendezvous(start, problem)[1] for start in starts])  # (8, H, 3)
+    states = np.stack([experts.solve_rendezvous(start, problem)[0][:-1] for start in starts])
+    saturated = (np.abs(plans) >= problem.u_max * (1 - 1e-6)).any(axis=(1, 2))
+    assert saturated.any() and not saturated.all()
+    model = train.PlanModel()
+    free = ~(np.abs(plans) >= problem.u_max * (1 - 1e-6))
+    gram = np.einsum("njc,jic,jkc->nik", free, model.impulse, model.impulse)
+    nu = np.linalg.solve(gram, -np.einsum("njc,jic,njc->ni", free, model.impulse, plans)[..., None])[..., 0]
+    replanned = np.clip(-np.einsum("jic,ni->njc", model.impulse, nu), -problem.u_max, problem.u_max)
+    np.testing.assert_allclose(replanned, plans, rtol=0, atol=1e-9)  # one nu answers the whole plan
+
+    obs = np.concatenate(
+        [rendezvous_observation(states[:, k], k, horizon, dtype=np.float64) for k in range(horizon)]
+    )
+    episode = np.tile(np.arange(len(starts)), horizon)
+    m = np.rint(obs[:, -1] * horizon).astype(int)
+    rest = nu[episode] - np.einsum("nij,nj->ni", model.law_multiplier[m], obs[:, :6])
+    correction = np.stack(
+        [np.linalg.lstsq(model.spread[k], r, rcond=None)[0] for k, r in zip(m, rest, strict=True)]
+    )
+    raw = torch.as_tensor(obs)
+    with torch.no_grad():
+        action = policy.law(raw) + (
+            policy.correction_gain[train.steps_to_go(raw)] @ torch.as_tensor(correction)[:, :, None]
+        ).squeeze(-1)
+    np.testing.assert_allclose(
+        np.clip(action.numpy(), -1, 1), plans[episode, horizon - m] / problem.u_max, rtol=0, atol=1e-9
+    )
+    loss = train.PlanLoss(train.Plans(plans.astype(np.float32), episode), obs, torch.device("cpu"))
+    rows = torch.arange(len(obs))
+    assert loss(torch.as_tensor(correction), raw, rows).item() < 1e-12
+    assert loss(torch.zeros(len(obs), 6), raw, rows).item() > 1e-4
+
+
+@pytest.mark.parametrize("name", ["docking", "rendezvous"])
+def test_the_onnx_export_carries_the_law(trains, tmp_path, name):
+    """Docking's residual, rendezvous' costate policy: the ONNX graph carries their gain tables."""
     onnx_policy = pytest.importorskip("cwh_envs.onnx_policy")
-    train = trains["docking"]
-    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 8, "N_LAYERS": 1}
+    train = trains[name]
+    form = "residual" if name == "docking" else "costate"
+    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 8, "N_LAYERS": 1}
     starts, goals = starts_of(train, 2)
     obs = fly(train.PROBLEM, MinEnergyFeedback(train.PROBLEM), starts, goals).states.reshape(-1, 6)
-    mean = np.r_[obs.mean(0), goals.mean(0), 0.5]
-    std = np.r_[obs.std(0), goals.std(0) + 1.0, 0.3]
+    goal_mean, goal_std = (goals.mean(0), goals.std(0) + 1.0) if goals is not None else ([], [])
+    mean, std = np.r_[obs.mean(0), goal_mean, 0.5], np.r_[obs.std(0), goal_std, 0.3]
     policy = train.build_policy(config, torch.as_tensor(mean), torch.as_tensor(std))
     source = tmp_path / "policy.pt"
     source.write_bytes(b"weights")
-    summary = onnx_policy.export_checked(policy, tmp_path / "p.onnx", {"task": "docking"}, source)
+    summary = onnx_policy.export_checked(policy, tmp_path / "p.onnx", {"task": train.TASK}, source)
     assert summary["max_action_difference"] <= 1e-5
 
 
@@ -128,7 +185,7 @@ def test_dagger_labels_are_the_expert_resolved_from_the_visited_states(trains, n
         goals,
         cbf_margin=problem.margin if goals is not None else None,
     )
-    obs, thrust, labels = train.relabel(flight)
+    obs, thrust, *plans, labels = train.relabel(flight)  # rendezvous: each state's re-plan too
     horizon = problem.horizon
     assert len(obs) == len(thrust) == 2 * horizon == labels["relabelled_states"]
     assert labels["hard_labels"] + labels["soft_labels"] + labels["fallback_labels"] == 2 * (horizon - 1)
@@ -148,6 +205,10 @@ def test_dagger_labels_are_the_expert_resolved_from_the_visited_states(trains, n
                 continue
             np.testing.assert_allclose(thrust[row], controls[0], rtol=0, atol=tolerance)
             np.testing.assert_allclose(obs[row, :6], state)
+            if plans:  # the costate form fits the whole re-plan, rows NaN before its step
+                table = plans[0].table[plans[0].row[row]]
+                np.testing.assert_allclose(table[k:], controls, rtol=0, atol=1e-6)  # float32
+                assert np.isnan(table[:k]).all()
             checked += 1
     assert checked >= (100 if name == "rendezvous" else 10)
     last = obs[-2:]
@@ -263,8 +324,11 @@ def test_a_pairs_loss_weight_scales_its_pull_and_weight_zero_pairs_move_nothing(
 
 # Docking relabels with its SCP (about 0.2 s a state from an untrained policy's states): one round
 # from one start keeps it near a minute.
-@pytest.mark.parametrize(("name", "iters", "starts"), [("rendezvous", 2, 3), ("docking", 1, 1)])
-def test_a_dagger_residual_run_reports_its_relabelling(tmp_path, name, iters, starts):
+@pytest.mark.parametrize(
+    ("name", "form", "iters", "starts"),
+    [("rendezvous", "residual", 2, 3), ("rendezvous", "costate", 1, 2), ("docking", "residual", 1, 1)],
+)
+def test_a_dagger_run_on_the_law_reports_its_relabelling(tmp_path, name, form, iters, starts):
     family = family_copy(
         name,
         tmp_path,
@@ -273,7 +337,7 @@ def test_a_dagger_residual_run_reports_its_relabelling(tmp_path, name, iters, st
         BATCH_SIZE=64,
         HIDDEN_DIM=16,
         N_LAYERS=1,
-        POLICY_FORM='"residual"',
+        POLICY_FORM=f'"{form}"',
         DAGGER_ITERS=iters,
         DAGGER_STARTS=starts,
     )

@@ -8,7 +8,11 @@ A time-conditioned MLP maps [x, y, z, vx, vy, vz, tau] to thrust / u_max and is 
 on screened expert demonstrations (Eq. bc_loss). Levers beyond the paper's behaviour cloning
 (the ``algorithm`` axis; their defaults are plain BC): POLICY_FORM = "residual" makes the network a
 bounded correction added to the closed-form shrinking-horizon minimum-energy law, whose gain table
-is part of the policy (cwh_envs.controllers.MinEnergyFeedback); DAGGER_ITERS > 0 runs DAgger rounds:
+is part of the policy (cwh_envs.controllers.MinEnergyFeedback); POLICY_FORM = "costate" makes it
+the law's multiplier re-aimed: the expert's controls over the steps left are ``clip(-G^T nu)`` for
+one nu in R^6 (the multiplier of its terminal constraint, the same all along its trajectory), the
+law is the nu that ignores the box, and the network outputs nu's correction, trained on the
+expert's whole remaining plan (class PlanLoss); DAGGER_ITERS > 0 runs DAgger rounds:
 fly the policy from training starts, relabel every visited state with the expert over the remaining
 horizon (receding-horizon MPC, cwh_envs.mpc, whose soft-terminal re-plan labels the states the hard
 expert cannot reach from), add them to the training set and train on. BOX_AWARE_LOSS stops
@@ -36,6 +40,7 @@ import random
 import sys
 import time
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +50,7 @@ from torch import nn
 
 from cwh_envs.controllers import min_energy_gains
 from cwh_envs.datasets import Demonstrations, demonstrations, evaluation_set
+from cwh_envs.dynamics import cwh_matrices
 from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.observations import rendezvous_observation
 from cwh_envs.problems import RendezvousProblem
@@ -62,7 +68,7 @@ HIDDEN_DIM = 128  # units in each hidden layer
 N_LAYERS = 2  # hidden layers
 ACTIVATION = "tanh"  # hidden nonlinearity: "tanh", "relu" or "gelu"
 DROPOUT = 0.0  # dropout probability after each hidden layer (training only)
-POLICY_FORM = "direct"  # "direct": the network is the policy; "residual": a correction to the closed-form law
+POLICY_FORM = "direct"  # "direct": the net is the policy; "residual": a correction to the law; "costate": to its multiplier
 RESIDUAL_SCALE = 1.0  # residual form: the correction's bound per axis, a fraction of u_max (tanh-squashed)
 BOX_AWARE_LOSS = False  # True: where the expert rides the thrust box, any output beyond it counts as exact
 DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour cloning)
@@ -102,8 +108,40 @@ CONFIG_NAMES = (
     "DAGGER_STARTS",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
-POLICY_FORMS = ("direct", "residual")
+POLICY_FORMS = ("direct", "residual", "costate")
 MAX_DAGGER_ITERS = 8
+
+
+class PlanModel:
+    """The condensed model behind the costate form. With m steps to go from x (at step H - m), the
+    expert's controls are u_t = clip(-Gamma_t^T nu) for t = H - m .. H - 1, Gamma_t = A^(H-1-t) B, and
+    one nu (KKT of its box QP; tail-optimal plans share it, so it is constant along a trajectory). The
+    law's multiplier ignores the box: nu = W_m^+ A^m x (W_m = G_m G_m^T; its first control is -L_m x,
+    cwh_envs.controllers.MinEnergyGains). The network's correction c enters as
+    nu = W_m^+ A^m x + S_m c, S_m = sqrt(m) u_max (W_m^+)^(1/2): the plan it adds to the law's has a
+    mean square of |c|^2 u_max^2 per step, so c is in the units of an action and of the loss."""
+
+    def __init__(self):
+        horizon = PROBLEM.horizon
+        a, b = cwh_matrices(PROBLEM.n, PROBLEM.dt, PROBLEM.mass, PROBLEM.discretization)
+        powers = [np.eye(6)]
+        for _ in range(horizon):
+            powers.append(a @ powers[-1])
+        steps_back = [power @ b for power in powers[:-1]]  # A^j B
+        self.impulse = np.stack(steps_back[::-1])  # (H, 6, 3): Gamma_t
+        self.law_multiplier = np.zeros((horizon + 1, 6, 6))  # W_m^+ A^m
+        self.spread = np.zeros((horizon + 1, 6, 6))  # S_m
+        gramian = np.zeros((6, 6))
+        for m in range(1, horizon + 1):
+            gramian = gramian + steps_back[m - 1] @ steps_back[m - 1].T
+            w, v = np.linalg.eigh(gramian)
+            v, w = v[:, w > w.max() * 1e-15], w[w > w.max() * 1e-15]  # m = 1: B B^T has rank 3
+            self.law_multiplier[m] = (v / w) @ v.T @ powers[m]
+            self.spread[m] = math.sqrt(m) * PROBLEM.u_max * (v / np.sqrt(w)) @ v.T
+        # The first control's gain on c, in u_max units: C_m = -Gamma_(H-m)^T S_m / u_max.
+        first = self.impulse[horizon - np.arange(1, horizon + 1)]  # Gamma_(H-m), m = 1..H
+        self.correction_gain = np.zeros((horizon + 1, 3, 6))
+        self.correction_gain[1:] = -np.einsum("mic,mij->mcj", first, self.spread[1:]) / PROBLEM.u_max
 
 
 class Policy(nn.Module):
@@ -111,16 +149,22 @@ class Policy(nn.Module):
 
     The residual form outputs ``law(obs) + RESIDUAL_SCALE tanh(net(obs))``, the law being the
     closed-form minimum-energy feedback from its gain table (buffers: float64, and exported with the
-    policy); with a zero correction it flies the law exactly.
+    policy); the costate form ``law(obs) + C_m net(obs)``, the network's six outputs correcting the
+    law's multiplier (:class:`PlanModel`; C_m a second gain table). With a zero correction either
+    flies the law exactly.
     """
 
     def __init__(self, config: dict, obs_mean: torch.Tensor, obs_std: torch.Tensor, u_max: float):
         super().__init__()
-        self.residual = config.get("POLICY_FORM", "direct") == "residual"
-        if self.residual:
+        self.form = config.get("POLICY_FORM", "direct")  # older configs: direct
+        self.on_law = self.form != "direct"
+        if self.on_law:
             gains = min_energy_gains(PROBLEM)
             self.register_buffer("state_gain", torch.tensor(gains.state_gain))  # (H+1, 3, 6): L_m
+        if self.form == "residual":
             self.scale = float(config["RESIDUAL_SCALE"])
+        if self.form == "costate":
+            self.register_buffer("correction_gain", torch.tensor(PlanModel().correction_gain))  # (H+1, 3, 6)
         layers, width = [], OBS_DIM
         for _ in range(config["N_LAYERS"]):
             layers += [
@@ -129,7 +173,7 @@ class Policy(nn.Module):
                 nn.Dropout(config["DROPOUT"]),
             ]
             width = config["HIDDEN_DIM"]
-        self.net = nn.Sequential(*layers, nn.Linear(width, ACT_DIM))
+        self.net = nn.Sequential(*layers, nn.Linear(width, 6 if self.form == "costate" else ACT_DIM))
         self.register_buffer("obs_mean", obs_mean.float())
         self.register_buffer("obs_std", obs_std.float())
         self.u_max = u_max
@@ -139,25 +183,29 @@ class Policy(nn.Module):
         shown by the env), else the observations recovered from the standardised ones (the ONNX
         graph's path)."""
         out = self.net(standardised_obs)
-        if not self.residual:
+        if not self.on_law:
             return out
         if obs is None:
             obs = standardised_obs.double() * self.obs_std.double() + self.obs_mean.double()
-        return self.law(obs) + self.scale * torch.tanh(out.double())  # float64: the law flies exactly
+        if self.form == "residual":  # float64: the law flies exactly
+            return self.law(obs) + self.scale * torch.tanh(out.double())
+        return self.law(obs) + (self.correction_gain[steps_to_go(obs)] @ out.double()[:, :, None]).squeeze(-1)
 
     def law(self, obs: torch.Tensor) -> torch.Tensor:
         """The closed-form law's thrust / u_max (unclipped), ``-L_m x`` with m = round(tau H) steps to go."""
-        steps = torch.round(obs[:, -1] * PROBLEM.horizon).long().clamp(1, PROBLEM.horizon)
-        return -(self.state_gain[steps] @ obs[:, :6, None]).squeeze(-1) / self.u_max
+        return -(self.state_gain[steps_to_go(obs)] @ obs[:, :6, None]).squeeze(-1) / self.u_max
 
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Observations (N, 7) as the env shows them -> actions (N, 3) as it takes them: thrust / u_max in [-1, 1]."""
         x = torch.as_tensor(obs, dtype=torch.float32, device=self.obs_mean.device)
-        raw = (
-            torch.as_tensor(obs, dtype=torch.float64, device=self.obs_mean.device) if self.residual else None
-        )
+        raw = torch.as_tensor(obs, dtype=torch.float64, device=self.obs_mean.device) if self.on_law else None
         return np.clip(self((x - self.obs_mean) / self.obs_std, raw).double().cpu().numpy(), -1.0, 1.0)
+
+
+def steps_to_go(obs: torch.Tensor) -> torch.Tensor:
+    """m = round(tau H) of each observation row (float64, as the env shows it)."""
+    return torch.round(obs[:, -1] * PROBLEM.horizon).long().clamp(1, PROBLEM.horizon)
 
 
 def build_policy(config: dict, obs_mean=None, obs_std=None) -> Policy:
@@ -220,12 +268,31 @@ def seed_everything(seed: int) -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Observations (M, 7) and expert thrust (M, 3) [N] of the first N_DEMOS pool trajectories, and
-    the content keys of the sets they come from."""
+@dataclass(frozen=True)
+class Plans:
+    """The costate form's targets: the expert's plan behind each training pair. ``table`` (R, H, 3)
+    thrust [N], NaN where a row holds no control; the pair at step k with ``row`` r is fit to
+    ``table[r, k:]``. A demonstration's row is its whole trajectory (the tail of an optimal plan is
+    the plan from there); a relabelled state's row is its own re-plan."""
+
+    table: np.ndarray
+    row: np.ndarray
+
+    def __add__(self, other: Plans) -> Plans:
+        return Plans(
+            np.concatenate([self.table, other.table]), np.concatenate([self.row, other.row + len(self.table)])
+        )
+
+
+def load_training_set(config: dict) -> tuple[np.ndarray, np.ndarray | Plans, dict]:
+    """Observations (M, 7) of the first N_DEMOS pool trajectories, their targets (expert thrust
+    (M, 3) [N]; the costate form: their :class:`Plans`), and the content keys of the sets they come from."""
     pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM)
     demos = pool.take(config["N_DEMOS"])
-    return demos.observations, demos.actions, {"train_pool": pool.content_key}
+    targets = demos.actions
+    if config["POLICY_FORM"] == "costate":
+        targets = Plans(demos.trajectory_thrust().astype(np.float32), demos.episode)
+    return demos.observations, targets, {"train_pool": pool.content_key}
 
 
 def box_aware(error: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -233,6 +300,38 @@ def box_aware(error: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     the box (+-1 in u_max units), an output beyond it flies the same action and costs nothing."""
     upper, lower = target >= 1.0 - 1e-6, target <= -1.0 + 1e-6
     return torch.where(upper, error.clamp(max=0.0), torch.where(lower, error.clamp(min=0.0), error))
+
+
+class PlanLoss:
+    """The costate form's loss: the whole plan the corrected multiplier implies over the steps left,
+    ``-Gamma_t^T nu`` (t = k..H-1, :class:`PlanModel`), against the expert's plan from that state,
+    box-aware at every control (:func:`box_aware`: the plan's form saturates where it clips), the
+    squared error averaged over the plan's controls, then over the batch. Its first control is the
+    action the policy flies, and tail-optimal plans share nu, so each pair is fit to where the expert
+    goes from there, not one step of it."""
+
+    def __init__(self, plans: Plans, obs: np.ndarray, device: torch.device):
+        model = PlanModel()
+        self.impulse = torch.tensor(model.impulse / PROBLEM.u_max, device=device)  # u / u_max per unit nu
+        self.law_multiplier = torch.tensor(model.law_multiplier, device=device)
+        self.spread = torch.tensor(model.spread, device=device)
+        self.table = torch.as_tensor(plans.table / PROBLEM.u_max, dtype=torch.float32, device=device)
+        self.row = torch.as_tensor(plans.row, device=device)
+        self.step = torch.as_tensor(PROBLEM.horizon - np.rint(obs[:, -1] * PROBLEM.horizon), device=device)
+        self.time = torch.arange(PROBLEM.horizon, device=device)
+
+    def __call__(self, out: torch.Tensor, raw: torch.Tensor, batch: torch.Tensor) -> torch.Tensor:
+        m = steps_to_go(raw)
+        nu = (self.law_multiplier[m] @ raw[:, :6, None] + self.spread[m] @ out.double()[:, :, None]).squeeze(
+            -1
+        )
+        planned = -torch.einsum("tic,bi->btc", self.impulse, nu)  # (B, H, 3), thrust / u_max
+        target = self.table[self.row[batch]].double()
+        valid = (self.time[None, :, None] >= self.step[batch, None, None]) & torch.isfinite(target)
+        target = torch.where(valid, target, 0.0)
+        error = torch.where(valid, box_aware(planned - target, target), 0.0)
+        controls = valid.all(dim=-1).sum(dim=1).clamp(min=1)
+        return (error.square().sum(dim=(1, 2)) / controls).mean()
 
 
 class Budget:
@@ -270,7 +369,7 @@ class Budget:
 def train(
     config: dict,
     obs: np.ndarray,
-    actions: np.ndarray,
+    targets: np.ndarray | Plans,
     device: torch.device,
     generator: torch.Generator,
     report=None,
@@ -279,8 +378,10 @@ def train(
     budget: Budget | None = None,
 ):
     """MSE behaviour cloning (Eq. bc_loss) for EPOCHS epochs; returns the policy and the best
-    epoch-mean loss. ``policy`` goes on training a policy (a DAgger round: its standardisation is
-    kept), its epochs numbered from ``first_epoch``. A spent ``budget`` ends it at that step.
+    epoch-mean loss. ``targets`` are the expert's thrust (M, 3) [N] at ``obs``, or for the costate
+    form its :class:`Plans` (fit by :class:`PlanLoss`). ``policy`` goes on training a policy (a DAgger
+    round: its standardisation is kept), its epochs numbered from ``first_epoch``. A spent ``budget``
+    ends it at that step.
 
     ``report(epoch, policy)`` is called, the policy in eval mode, at PROGRESS_POINTS evenly spaced
     epochs of the whole run (every DAgger round included).
@@ -292,8 +393,11 @@ def train(
     else:
         mean, std = policy.obs_mean.double().cpu().numpy(), policy.obs_std.double().cpu().numpy()
     x = torch.as_tensor((obs - mean) / std, dtype=torch.float32, device=device)
-    raw = torch.as_tensor(obs, dtype=torch.float64, device=device) if policy.residual else None
-    y = torch.as_tensor(actions / PROBLEM.u_max, dtype=torch.float32, device=device)
+    raw = torch.as_tensor(obs, dtype=torch.float64, device=device) if policy.on_law else None
+    if isinstance(targets, Plans):
+        plan_loss, y = PlanLoss(targets, obs, device), None
+    else:
+        plan_loss, y = None, torch.as_tensor(targets / PROBLEM.u_max, dtype=torch.float32, device=device)
     optimizer = torch.optim.AdamW(
         policy.parameters(), lr=config["LEARNING_RATE"], weight_decay=config["WEIGHT_DECAY"]
     )
@@ -312,10 +416,13 @@ def train(
         epoch_loss, seen = torch.zeros((), device=device), 0
         for start in range(0, len(x), config["BATCH_SIZE"]):
             batch = order[start : start + config["BATCH_SIZE"]]
-            error = policy(x[batch], None if raw is None else raw[batch]) - y[batch]
-            if config["BOX_AWARE_LOSS"]:
-                error = box_aware(error, y[batch])
-            loss = error.square().sum(dim=1).mean()
+            if plan_loss is not None:
+                loss = plan_loss(policy.net(x[batch]), raw[batch], batch)
+            else:
+                error = policy(x[batch], None if raw is None else raw[batch]) - y[batch]
+                if config["BOX_AWARE_LOSS"]:
+                    error = box_aware(error, y[batch])
+                loss = error.square().sum(dim=1).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             nn.utils.clip_grad_norm_(policy.parameters(), config["GRAD_CLIP"])
@@ -342,12 +449,12 @@ def train(
 
 
 def dagger(
-    config: dict, policy: Policy, obs, actions, device, generator, report, budget: Budget, best_loss: float
+    config: dict, policy: Policy, obs, targets, device, generator, report, budget: Budget, best_loss: float
 ):
     """DAGGER_ITERS rounds of DAgger after the first training: fly the policy from the first
     DAGGER_STARTS starts of the training pool, relabel every state it visits with the expert over
-    the remaining horizon, add those pairs to the training set and train EPOCHS more epochs.
-    Returns the policy, its best loss, the training-set size and the relabelling's counts."""
+    the remaining horizon, add those pairs (the costate form: their re-plans) to the training set and
+    train EPOCHS more epochs. Returns the policy, its best loss, the training-set size and the relabelling's counts."""
     starts = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM).starts[
         : config["DAGGER_STARTS"]
     ]
@@ -359,29 +466,41 @@ def dagger(
             counts["rounds"] = round_ - 1
             break
         started = time.perf_counter()
-        new_obs, new_actions, labels = relabel(fly(policy, starts))
+        new_obs, new_actions, new_plans, labels = relabel(fly(policy, starts))
         counts["relabel_seconds"] += time.perf_counter() - started
         for key, value in labels.items():
             counts[key] += value
-        obs, actions = np.concatenate([obs, new_obs]), np.concatenate([actions, new_actions])
+        obs = np.concatenate([obs, new_obs])
+        targets = (
+            targets + new_plans if isinstance(targets, Plans) else np.concatenate([targets, new_actions])
+        )
         policy, best_loss = train(
-            config, obs, actions, device, generator, report, policy, round_ * config["EPOCHS"], budget
+            config, obs, targets, device, generator, report, policy, round_ * config["EPOCHS"], budget
         )
     counts["relabel_seconds"] = round(counts["relabel_seconds"], 3)
     return policy, best_loss, len(obs), counts
 
 
-def relabel(flight: Flight) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Observations (N H, 7) of every state a flight visited (steps 0..H-1) and the expert's thrust
-    [N] there: receding-horizon MPC flown over the visited states in time order, so that each state
-    gets the first control of the expert re-solved over the steps left, warm-started from the same
-    start's previous label; the soft-terminal expert where the hard one cannot answer, and at the
-    last step the closed-form law's one-step control (no thrust moves the final position)."""
+def relabel(flight: Flight) -> tuple[np.ndarray, np.ndarray, Plans, dict]:
+    """Observations (N H, 7) of every state a flight visited (steps 0..H-1, time-major), the expert's
+    thrust [N] there and its whole re-plan (:class:`Plans`, one row per state): receding-horizon MPC
+    flown over the visited states in time order, so that each state gets the first control of the
+    expert re-solved over the steps left, warm-started from the same start's previous label; the
+    soft-terminal expert where the hard one cannot answer, and at the last step the closed-form law's
+    one-step control (no thrust moves the final position; a row the law answers holds that control
+    alone)."""
     expert = RecedingHorizon(PROBLEM, on_failure="soft")  # a label answers from this very state
-    horizon = PROBLEM.horizon
+    horizon, n = PROBLEM.horizon, len(flight.states)
     obs = [rendezvous_observation(flight.states[:, k], k, horizon, dtype=np.float64) for k in range(horizon)]
-    thrust = [expert(o) * PROBLEM.u_max for o in obs]
-    n = len(flight.states)
+    table = np.full((horizon * n, horizon, 3), np.nan, dtype=np.float32)
+    thrust = []
+    for k, observed in enumerate(obs):
+        thrust.append(expert(observed) * PROBLEM.u_max)
+        for i, plan in enumerate(expert.plans):
+            if plan is None:
+                table[k * n + i, k] = thrust[-1][i]
+            else:
+                table[k * n + i, k:] = plan
     labels = {
         "relabelled_states": n * horizon,
         "hard_labels": int(expert.solves.sum() - expert.infeasible.sum()),
@@ -389,7 +508,7 @@ def relabel(flight: Flight) -> tuple[np.ndarray, np.ndarray, dict]:
         "fallback_labels": int(expert.fallbacks.sum()),
         "last_step_law_labels": n,
     }
-    return np.concatenate(obs), np.concatenate(thrust), labels
+    return np.concatenate(obs), np.concatenate(thrust), Plans(table, np.arange(horizon * n)), labels
 
 
 def fly(policy: Policy, starts: np.ndarray) -> Flight:
@@ -450,7 +569,7 @@ def main() -> None:
     run_id = args.run_id or uuid.uuid4().hex[:12]
     device = seed_everything(args.seed)
 
-    obs, actions, datasets = load_training_set(config)
+    obs, targets, datasets = load_training_set(config)
     search = evaluation_set(TASK, N_EVAL, problem=PROBLEM, split="search")
     datasets["search_split"] = search.content_key
     first = search.take(N_PROGRESS)
@@ -462,11 +581,11 @@ def main() -> None:
     started = time.perf_counter()
     generator = torch.Generator(device="cpu").manual_seed(args.seed)
     budget.start()
-    policy, best_loss = train(config, obs, actions, device, generator, report, budget=budget)
+    policy, best_loss = train(config, obs, targets, device, generator, report, budget=budget)
     n_train_pairs, dagger_counts = len(obs), None
     if config["DAGGER_ITERS"]:
         policy, best_loss, n_train_pairs, dagger_counts = dagger(
-            config, policy, obs, actions, device, generator, report, budget, best_loss
+            config, policy, obs, targets, device, generator, report, budget, best_loss
         )
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
