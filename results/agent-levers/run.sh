@@ -10,6 +10,7 @@
 # machine, the two workers busy). WARM=0 starts the GP cold (campaign <family>-gp-cold): warm-started
 # from the paper-space campaigns, whose runs all fly the baseline of the new axis, the docking GP
 # never tried it (results/README.md). AUDIT=verify reseeds the best only (no pruning, no random arm).
+# SUFFIX names a further campaign of the same kind (the space grew: rendezvous' costate form).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 export OMP_NUM_THREADS=1 MPLBACKEND=Agg PATH="$PWD/.venv/bin:$PATH"
@@ -26,6 +27,7 @@ SEEDS=${SEEDS:-5}
 dir=results/agent-levers/$family-gp
 warm_start=(--warm-start "${warm[@]}")
 if [ "${WARM:-1}" = 0 ]; then dir=$dir-cold; warm_start=(); fi
+dir=$dir${SUFFIX:+-$SUFFIX}  # e.g. SUFFIX=costate: a new campaign once the space has grown
 python "families/$family/prepare.py" --warm-cache  # every pool the space can ask for (a no-op when cached)
 start=$SECONDS
 if [ -f "$dir/campaign.json" ]; then
