@@ -179,9 +179,9 @@ class Policy(nn.Module):
         self.u_max = u_max
 
     def forward(self, standardised_obs: torch.Tensor, obs: torch.Tensor | None = None) -> torch.Tensor:
-        """Unclipped thrust / u_max; the residual form's (float64) law reads ``obs`` (float64, as
-        shown by the env), else the observations recovered from the standardised ones (the ONNX
-        graph's path)."""
+        """Unclipped thrust / u_max; the law under the residual and costate forms (float64) reads
+        ``obs`` (float64, as shown by the env), else the observations recovered from the standardised
+        ones (the ONNX graph's path)."""
         out = self.net(standardised_obs)
         if not self.on_law:
             return out
