@@ -23,6 +23,7 @@ import json
 import platform
 import subprocess
 from importlib import metadata
+from itertools import combinations
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,7 @@ AUDIT_WRITES = ("seed_noise", "best")  # family.json fields the audit writes (or
 # so they are left out of the hash too, and declaring them leaves every campaign of the family resumable
 AUDIT_READS = ("tails",)
 GIT_TIMEOUT_S = 10.0
+MAX_UNSEEN_CHOICES = 8  # categorical choices a campaign did not see: up to this many, every subset is tried
 
 
 class ProvenanceError(RuntimeError):
@@ -86,15 +88,18 @@ def family_hashes(family_dir: Path) -> dict[str, str | None]:
     return hashes
 
 
-def family_hash_as_seen(family_dir: Path, seen: dict[str, Any]) -> str | None:
-    """family.json's hash (as :func:`family_hashes`) as a campaign that was shown the registry
-    ``seen`` recorded it: the top-level fields, parameters and axes the family declared since left
-    out, the baseline restricted to the parameters seen, and the baseline's metric as seen. It
-    equals the recorded hash exactly when the family only grew (new parameters, which every earlier
-    run held at their baseline value; new fields such as ``protocols``) or its baseline was measured
-    again (the metric is a measurement, like the seed noise, and every campaign measures its own
-    baseline first: the search split moving from 128 to 512 starts re-measured it); None when
-    family.json does not read."""
+def family_hashes_as_seen(family_dir: Path, seen: dict[str, Any]) -> set[str]:
+    """The hashes family.json (as :func:`family_hashes`) may have had when a campaign that was shown
+    the registry ``seen`` recorded it, had the family only grown since: the top-level fields,
+    parameters and axes declared since left out, the baseline restricted to the parameters seen,
+    the baseline's metric as seen, and each categorical's choices less any of those the campaign
+    did not see (each such subset is tried: a protocol shows a campaign an axis narrowed to its
+    baseline, so which choices came later is not in ``seen``). One equals the recorded hash exactly
+    when the family only grew (new parameters, which every earlier run held at their baseline value;
+    new choices, which no earlier run drew; new fields such as ``protocols``) or its baseline was
+    measured again (the metric is a measurement, like the seed noise, and every campaign measures
+    its own baseline first: the search split moving from 128 to 512 starts re-measured it); empty
+    when family.json does not read."""
     try:
         registry = json.loads((family_dir / "family.json").read_bytes())
         space, axes = seen["search_space"], seen["axes"]
@@ -106,9 +111,25 @@ def family_hash_as_seen(family_dir: Path, seen: dict[str, Any]) -> str | None:
         kept["baseline"].pop("metric", None)
         if "metric" in seen["baseline"]:
             kept["baseline"]["metric"] = seen["baseline"]["metric"]
+        unseen = [
+            (name, choice)
+            for name, spec in kept["search_space"].items()
+            if isinstance(spec.get("choices"), list) and isinstance(space[name].get("choices"), list)
+            for choice in spec["choices"]
+            if choice not in space[name]["choices"]
+        ]
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return None
-    return hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()[:16]
+        return set()
+    sizes = range(len(unseen) + 1) if len(unseen) <= MAX_UNSEEN_CHOICES else (0, len(unseen))
+    hashes = set()
+    for size in sizes:
+        for later in combinations(unseen, size):
+            specs = dict(kept["search_space"])
+            for name, choice in later:
+                specs[name] = {**specs[name], "choices": [c for c in specs[name]["choices"] if c != choice]}
+            text = json.dumps({**kept, "search_space": specs}, sort_keys=True)
+            hashes.add(hashlib.sha256(text.encode()).hexdigest()[:16])
+    return hashes
 
 
 def git_state(directory: Path, status: bool = True) -> dict[str, Any] | None:

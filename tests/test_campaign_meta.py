@@ -113,12 +113,14 @@ def test_a_malformed_campaign_json_names_what_is_wrong(tmp_path, data, message, 
     assert "campaign.json" in capsys.readouterr().out
 
 
-def grow(family_dir, name="WARMUP", axis="optimizer", spec_change=None):
-    """The toy family with one new parameter (its default in train.py and the baseline), or with an
-    existing parameter's bounds changed."""
+def grow(family_dir, name="WARMUP", axis="optimizer", spec_change=None, choices=None):
+    """The toy family with one new parameter (its default in train.py and the baseline), with an
+    existing parameter's bounds changed, or with ACTIVATION's ``choices``."""
     registry = json.loads((family_dir / "family.json").read_text())
     if spec_change:
         registry["search_space"]["EPOCHS"]["high"] = spec_change
+    elif choices:
+        registry["search_space"]["ACTIVATION"]["choices"] = choices
     else:
         registry["axes"].append("algorithm")
         registry["search_space"][name] = {"type": "int", "low": 0, "high": 3, "axis": "algorithm"}
@@ -131,8 +133,9 @@ def grow(family_dir, name="WARMUP", axis="optimizer", spec_change=None):
 
 
 def test_a_family_that_only_grew_is_the_same_family_to_its_campaigns(tmp_path, monkeypatch):
-    """New parameters (held at their baseline by every earlier run) and new fields keep a campaign
-    readable and auditable; a changed bound of a parameter it searched does not."""
+    """New parameters (held at their baseline by every earlier run), a choice added to a categorical
+    and new fields keep a campaign readable and auditable; a changed bound of a parameter it
+    searched, or a choice taken away, does not."""
     monkeypatch.chdir(tmp_path)
     toy = copy_toy(tmp_path)
     assert (
@@ -145,9 +148,52 @@ def test_a_family_that_only_grew_is_the_same_family_to_its_campaigns(tmp_path, m
     assert "WARMUP" in family.space.names
     assert family.completed({"EPOCHS": 3})["WARMUP"] == 0
     assert main(["check", "--campaign", "c"]) == 0
-    grow(toy, spec_change=59)
-    with pytest.raises(CampaignError, match="search space changed"):
-        meta.open_family(tmp_path / "c")
+    grow(toy, choices=["tanh", "silu", "relu", "gelu"])  # one more activation to draw
+    assert meta.open_family(tmp_path / "c").space.params["ACTIVATION"].choices == (
+        "tanh",
+        "silu",
+        "relu",
+        "gelu",
+    )
+    for changed in ({"choices": ["tanh", "relu"]}, {"spec_change": 59}):
+        grow(toy, **changed)
+        with pytest.raises(CampaignError, match="search space changed"):
+            meta.open_family(tmp_path / "c")
+        grow(toy, choices=["tanh", "relu", "gelu"])
+
+
+def test_a_protocol_campaign_opens_after_a_choice_it_never_saw_was_added(tmp_path, monkeypatch):
+    """A protocol shows its campaign an axis narrowed to the baseline (FORM: ["plain"]), so the
+    registry it saw does not say which of the family's choices came later: the family that grew a
+    choice still opens the campaign, the family that lost one does not."""
+    monkeypatch.chdir(tmp_path)
+    toy = copy_toy(tmp_path)
+    registry = json.loads((toy / "family.json").read_text())
+    registry["axes"].append("algorithm")
+    registry["search_space"]["FORM"] = {
+        "type": "categorical",
+        "choices": ["plain", "fancy"],
+        "axis": "algorithm",
+    }
+    registry["baseline"]["config"]["FORM"] = "plain"
+    registry["protocols"] = {"before": {"exclude_axes": ["algorithm"]}}
+    (toy / "family.json").write_text(json.dumps(registry, indent=2))
+    source = (toy / "train.py").read_text()
+    (toy / "train.py").write_text(source.replace("EPOCHS = 10", 'EPOCHS = 10\nFORM = "plain"  # a lever', 1))
+    loop = ["loop", "--family", str(toy), "--protocol", "before", "--proposer", "random", "--max-iters", "2"]
+    assert main([*loop, "--campaign", "c"]) == 0
+    meta = CampaignMeta.read(tmp_path / "c")
+    assert json.loads((tmp_path / "c" / "family.json").read_text())["search_space"]["FORM"]["choices"] == [
+        "plain"
+    ]
+    for choices, opens in ((["plain", "fancy", "fancier"], True), (["plain"], False)):
+        registry["search_space"]["FORM"]["choices"] = choices
+        (toy / "family.json").write_text(json.dumps(registry, indent=2))
+        if opens:
+            assert meta.open_family(tmp_path / "c").name == meta.family_name
+        else:
+            with pytest.raises(CampaignError, match="search space changed"):
+                meta.open_family(tmp_path / "c")
 
 
 def test_a_baseline_measured_again_is_the_same_family_but_a_changed_target_is_not(tmp_path, monkeypatch):

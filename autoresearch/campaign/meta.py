@@ -91,7 +91,8 @@ class CampaignMeta:
         """Refuse a family other than the one this campaign ran: another name, or a family.json whose
         problem or search space differs from the recorded one (CampaignError naming both). A family
         that only grew since (new parameters held at their baseline value by every earlier run, new
-        fields) is the same one: judged against the registry the campaign in ``root`` was shown."""
+        choices of a categorical, new fields) is the same one: judged against the registry the
+        campaign in ``root`` was shown (:func:`autoresearch.provenance.family_hashes_as_seen`)."""
         if family.name != self.family_name:
             raise CampaignError(f"this campaign is of family {self.family_name!r}, not {family.name!r}")
         recorded = ((self.provenance or {}).get("family_files") or {}).get("family.json")
@@ -99,7 +100,7 @@ class CampaignMeta:
         if recorded and found != recorded and root is not None:
             seen = CampaignPaths(Path(root)).family_json
             shown = json.loads(seen.read_text(encoding="utf-8")) if seen.is_file() else None
-            if isinstance(shown, dict) and provenance.family_hash_as_seen(family.path, shown) == recorded:
+            if isinstance(shown, dict) and recorded in provenance.family_hashes_as_seen(family.path, shown):
                 return
         if recorded and found != recorded:
             raise CampaignError(
