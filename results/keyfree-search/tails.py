@@ -10,7 +10,9 @@ reseeds. With --retrain, a reseed whose policy is not here is trained again from
 configuration and seed (under runs/keyfree-tails/, two at a time), and the mean check allows a
 relative 1e-4: the hand recipe's retrained reseeds reproduced their logged means within 4e-6
 relative here, not bit for bit (the cause, likely the library builds of an earlier session, was
-not traced). Each reseed's logged mean is kept beside the flown one.
+not traced). Each reseed's logged mean is kept beside the flown one. Without --retrain, an entry
+whose policies are not on this machine keeps what an earlier tails.json holds for it (flown where
+they were), so a run on a fresh checkout adds its new campaigns and loses none.
 
     python results/keyfree-search/tails.py [--retrain] [ROOT]   # ROOT: results/keyfree-search
 """
@@ -70,7 +72,9 @@ def reseeds(log: Path, prefix: str, run_root: Path, train, test, retraining: boo
     missing = [r for r in rows if not (runs[r.key] / "out" / "policy.pt").exists()]
     if missing and not retraining:
         print(
-            f"{run_root}: {len(missing)} reseed policies not here (not committed; --retrain)", file=sys.stderr
+            f"{run_root}: {len(missing)} reseed policies not here (not committed): an earlier tails.json "
+            "entry is kept; --retrain flies them again",
+            file=sys.stderr,
         )
         return None
     scratch = REPO / "runs" / "keyfree-tails" / run_root.relative_to(REPO)
@@ -110,6 +114,10 @@ def main() -> None:
     parser.add_argument("root", nargs="?", type=Path, default=REPO / "results" / "keyfree-search")
     args = parser.parse_args()
     root = args.root.resolve()
+    earlier = json.loads((root / "tails.json").read_text()) if (root / "tails.json").exists() else {}
+    flown_before = {
+        e["campaign"]: e for arm in ("random", "tpe", "tpe-hyperband") for e in earlier.get(arm, [])
+    }
     train = load_train(FAMILY)
     test = evaluation_set(train.TASK, train.N_TEST, problem=train.PROBLEM, split="test")
     out, lines = {}, []
@@ -124,12 +132,18 @@ def main() -> None:
     hand = reseeds(HAND / "trials.jsonl", f"sealed-{HAND.name}-", HAND, train, test, args.retrain)
     if hand is not None:
         out["hand_recipe"] = {"remeasured": HAND.relative_to(REPO).as_posix(), **hand}
-        line("hand recipe", "-", hand)
+    elif "hand_recipe" in earlier:
+        out["hand_recipe"] = earlier["hand_recipe"]
+    if "hand_recipe" in out:
+        line("hand recipe", "-", out["hand_recipe"])
     for arm in ("random", "tpe", "tpe-hyperband"):
         for campaign in sorted((root / arm).glob("repeat-*")):
+            name = campaign.relative_to(REPO).as_posix()
             found = audited_best(campaign, train, test, args.retrain)
+            if found is None and name in flown_before:
+                found = {k: v for k, v in flown_before[name].items() if k != "campaign"}
             if found is not None:
-                out.setdefault(arm, []).append({"campaign": campaign.relative_to(REPO).as_posix(), **found})
+                out.setdefault(arm, []).append({"campaign": name, **found})
                 line(arm, campaign.name.removeprefix("repeat-"), found)
     (root / "tails.json").write_text(json.dumps(out, indent=2) + "\n")
     print("| audited best | repeat | mean | p99 | max | p99 per reseed |")
