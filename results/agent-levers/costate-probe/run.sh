@@ -5,7 +5,10 @@
 # 11,738 demonstrations, 7 x 384 GELU; 0.111 m on the sealed split) trained again with:
 #   residual    the recipe as the campaign ran it (the control);
 #   costate     the same recipe, POLICY_FORM = "costate";
-#   costate-bc  that, without DAgger (DAGGER_ITERS = 0).
+#   costate-bc  that, without DAgger (DAGGER_ITERS = 0);
+#   residual-dagger, costate-dagger  the recipe made small enough for its DAgger rounds to run within
+#               the budget (1024 demonstrations, 3 x 256, no dropout, 8 epochs a round, 3 rounds of
+#               256 starts), in each form (ARMS="residual-dagger costate-dagger").
 # Each at SEEDS under AUTORESEARCH_TIME_BUDGET=BUDGET (the campaign's 240 s), scored on the 512
 # starts of the search split: a hand probe, so the sealed test split stays for the audit.
 #   bash results/agent-levers/costate-probe/run.sh > results/logs/agent_levers_costate_probe.txt 2>&1
@@ -29,6 +32,9 @@ runs = Path("results/agent-levers/rendezvous-gp-cold/runs.jsonl").read_text().sp
 config = next(json.loads(line)["config"] for line in runs if json.loads(line)["run_id"] == "it0010")
 arms = {"residual": {}, "costate": {"POLICY_FORM": "costate"}}
 arms["costate-bc"] = arms["costate"] | {"DAGGER_ITERS": 0}
+small = {"N_DEMOS": 1024, "HIDDEN_DIM": 256, "N_LAYERS": 3, "DROPOUT": 0.0, "EPOCHS": 8}
+small |= {"DAGGER_ITERS": 3, "DAGGER_STARTS": 256}
+arms |= {f"{form}-dagger": small | {"POLICY_FORM": form} for form in ("residual", "costate")}
 config |= arms[sys.argv[2]]
 source = Path("families/rendezvous/train.py").read_text()
 Path(sys.argv[1]).write_text(patch(source, config))
