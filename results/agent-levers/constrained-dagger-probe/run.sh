@@ -38,20 +38,10 @@ Path(sys.argv[1]).write_text(patch(source, config))
 print(sys.argv[2], "config:", json.dumps(config))
 PY
 done
-one() {  # arm seed
-  local run=$root/$1-s$2
-  mkdir -p "$run"
-  [ -f "$run/out/policy.pt" ] || (cd families/docking-constrained && AUTORESEARCH_TIME_BUDGET=$BUDGET \
-    python "../../$root/$1.py" --seed "$2" --out "../../$run/out" --runs-log "../../$run/runs.jsonl" \
-    > "../../$run/stdout.txt")
-  echo "$1 seed $2: $(grep FINAL_METRIC "$run/stdout.txt" | python -c 'import json,sys
-r = json.loads(sys.stdin.read().split(": ", 1)[1])
-print(json.dumps({k: r.get(k) for k in ("score", "success_rate", "violation_rates", "effort_ratio",
-    "max_terminal_distance", "train_seconds", "budget_exhausted", "dagger")}))')"
-}
-export -f one
-export root BUDGET
-for seed in $SEEDS; do for arm in $ARMS; do echo "$arm $seed"; done; done | xargs -P 2 -L 1 bash -c 'one "$0" "$1"'
+FAMILY=docking-constrained
+FIELDS="score success_rate violation_rates effort_ratio max_terminal_distance train_seconds budget_exhausted dagger"
+source results/agent-levers/probe_lib.sh
+probe_runs
 runs=()
 for arm in $ARMS; do runs+=("$root/$arm"-s*); done
 python results/agent-levers/constrained_beside_classical.py "${runs[@]}"

@@ -41,18 +41,7 @@ Path(sys.argv[1]).write_text(patch(source, config))
 print(sys.argv[2], "config:", json.dumps(config))
 PY
 done
-one() {  # arm seed
-  local run=$root/$1-s$2
-  mkdir -p "$run"
-  [ -f "$run/out/policy.pt" ] || (cd families/rendezvous && AUTORESEARCH_TIME_BUDGET=$BUDGET \
-    python "../../$root/$1.py" --seed "$2" --out "../../$run/out" --runs-log "../../$run/runs.jsonl" \
-    > "../../$run/stdout.txt")
-  echo "$1 seed $2: $(grep FINAL_METRIC "$run/stdout.txt" | python -c 'import json,sys
-r = json.loads(sys.stdin.read().split(": ", 1)[1])
-print(json.dumps({k: r.get(k) for k in ("mean_terminal_distance", "median_terminal_distance",
-    "max_terminal_distance", "success_rate", "effort_ratio", "train_seconds", "budget_exhausted",
-    "n_train_pairs", "dagger")}))')"
-}
-export -f one
-export root BUDGET
-for seed in $SEEDS; do for arm in $ARMS; do echo "$arm $seed"; done; done | xargs -P 2 -L 1 bash -c 'one "$0" "$1"'
+FAMILY=rendezvous
+FIELDS="mean_terminal_distance median_terminal_distance max_terminal_distance success_rate effort_ratio train_seconds budget_exhausted n_train_pairs dagger"
+source results/agent-levers/probe_lib.sh
+probe_runs
