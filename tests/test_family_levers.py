@@ -72,20 +72,32 @@ def test_the_defaults_are_plain_behaviour_cloning(trains, name):
     assert {k: config[k] for k in family["baseline"]["config"]} == family["baseline"]["config"]
 
 
-@pytest.mark.parametrize("name", FAMILIES)
-def test_a_residual_with_a_zero_correction_flies_the_closed_form_law(trains, name):
-    train = trains[name]
-    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 8, "N_LAYERS": 1}
+def zero_correction(train, form: str):
+    """A fresh ``form`` policy (some standardisation) whose network outputs zero, and its config."""
+    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 8, "N_LAYERS": 1}
     policy = train.build_policy(config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5)
     with torch.no_grad():
         policy.net[-1].weight.zero_()
         policy.net[-1].bias.zero_()
-    starts, goals = starts_of(train, 3)
-    law = MinEnergyFeedback(train.PROBLEM)
+    return policy, config
+
+
+def assert_flies_the_law(train, policy, starts, goals):
+    """``policy`` flies the closed-form law from ``starts``: returns the law's flight."""
     learned = fly(train.PROBLEM, policy.act, starts, goals)
-    closed_form = fly(train.PROBLEM, law, starts, goals)
+    closed_form = fly(train.PROBLEM, MinEnergyFeedback(train.PROBLEM), starts, goals)
     np.testing.assert_allclose(learned.states, closed_form.states, rtol=0, atol=1e-9)
     np.testing.assert_allclose(learned.thrust, closed_form.thrust, rtol=0, atol=1e-12)
+    return closed_form
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_a_residual_with_a_zero_correction_flies_the_closed_form_law(trains, name):
+    train = trains[name]
+    policy, config = zero_correction(train, "residual")
+    starts, goals = starts_of(train, 3)
+    closed_form = assert_flies_the_law(train, policy, starts, goals)
+    law = MinEnergyFeedback(train.PROBLEM)
     # and the correction moves it, within its bound
     with torch.no_grad():
         policy.net[-1].bias.fill_(10.0)  # tanh -> 1: the law plus RESIDUAL_SCALE on every axis
@@ -107,16 +119,9 @@ def test_a_costate_policy_is_the_law_at_zero_and_the_expert_at_the_experts_multi
     the law's (zero correction) does not where the box binds."""
     train = trains["rendezvous"]
     problem, horizon = train.PROBLEM, train.PROBLEM.horizon
-    config = {**defaults(train), "POLICY_FORM": "costate", "HIDDEN_DIM": 8, "N_LAYERS": 1}
-    policy = train.build_policy(config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5)
-    with torch.no_grad():
-        policy.net[-1].weight.zero_()
-        policy.net[-1].bias.zero_()
+    policy, _ = zero_correction(train, "costate")
     starts, _ = starts_of(train, 8)
-    law = MinEnergyFeedback(problem)
-    learned, closed_form = fly(problem, policy.act, starts), fly(problem, law, starts)
-    np.testing.assert_allclose(learned.states, closed_form.states, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(learned.thrust, closed_form.thrust, rtol=0, atol=1e-12)
+    assert_flies_the_law(train, policy, starts, None)
 
     plans = np.stack([experts.solve_rendezvous(start, problem)[1] for start in starts])  # (8, H, 3)
     states = np.stack([experts.solve_rendezvous(start, problem)[0][:-1] for start in starts])
