@@ -164,9 +164,8 @@ def run_random_arm(
     if split is Split.TEST:  # the paper's verdict stays beside the one on the sealed split
         part["search_verdict"] = {"verdict": part["verdict"], "units": part["units"]}
         part.update(judge_on_test(campaign, executor, state, matched_range))
-    part["provenance"] = earlier.kept(
-        "provenance", part["provenance"]
-    )  # a resumed finished arm keeps its own
+    # a resumed arm that drew and judged nothing new keeps the provenance it was measured under
+    part["provenance"] = earlier.kept("provenance", part["provenance"])
     write_step(campaign.root, step, part)
     return part
 
