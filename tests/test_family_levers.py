@@ -327,6 +327,73 @@ def test_a_pairs_loss_weight_scales_its_pull_and_weight_zero_pairs_move_nothing(
             train.check_config({**defaults(train), "DAGGER_WEIGHT": bad})
 
 
+@pytest.mark.parametrize("form", ["direct", "residual", "costate"])
+def test_closed_loop_fine_tuning_flies_the_policy_as_the_env_does(trains, form):
+    """ClosedLoop's torch flight is the env's: the same terminal distances, start by start."""
+    train = trains["rendezvous"]
+    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 16, "N_LAYERS": 1}
+    torch.manual_seed(0)
+    policy = train.build_policy(
+        config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5
+    ).eval()
+    starts, _ = starts_of(train, 16)
+    env = fly(train.PROBLEM, policy.act, starts).terminal_distance
+    with torch.no_grad():
+        flown = train.ClosedLoop(torch.device("cpu")).terminal_distance(policy, torch.as_tensor(starts))
+    np.testing.assert_allclose(flown.numpy(), env, rtol=0, atol=1e-8)
+    assert env.std() > 1e-3  # the starts end apart: a flight that ignored its policy would not match
+
+
+def test_a_closed_loop_gradient_step_lowers_the_flown_distance(trains):
+    """The loss's gradient reaches the network through the whole flight and points downhill: a small
+    step against it lowers the mean terminal distance from the same starts."""
+    train = trains["rendezvous"]
+    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 16, "N_LAYERS": 1}
+    torch.manual_seed(1)
+    policy = train.build_policy(config, torch.zeros(train.OBS_DIM), torch.ones(train.OBS_DIM)).eval()
+    starts = torch.as_tensor(starts_of(train, 32)[0])
+    loss_of = train.ClosedLoop(torch.device("cpu"))
+    before = loss_of(policy, starts)
+    before.backward()
+    grads = [p.grad for p in policy.net.parameters()]
+    assert all(g is not None and torch.isfinite(g).all() for g in grads) and any(
+        g.abs().sum() > 0 for g in grads
+    )
+    with torch.no_grad():
+        for p in policy.net.parameters():
+            p -= 1e-4 * p.grad
+        after = loss_of(policy, starts)
+    assert after < before
+
+
+def test_a_fine_tuning_run_reports_its_steps_and_a_spent_budget_skips_them(tmp_path):
+    family = family_copy(
+        "rendezvous", tmp_path, N_DEMOS=4, EPOCHS=2, HIDDEN_DIM=16, N_LAYERS=1, FINETUNE_STEPS=3
+    )
+    record = final_metric(
+        run(family / "train.py", "--out", str(tmp_path / "out"), cache=tmp_path / "cache", check=True).stdout
+    )
+    tuned = record["finetune"]
+    assert tuned["steps"] == 3 and math.isfinite(tuned["first_loss"]) and math.isfinite(tuned["last_loss"])
+    assert record["config"]["FINETUNE_STEPS"] == 3
+    family = family_copy(
+        "rendezvous",
+        tmp_path / "cut",
+        N_DEMOS=8,
+        EPOCHS=100000,
+        BATCH_SIZE=16,
+        HIDDEN_DIM=16,
+        FINETUNE_STEPS=3,
+    )
+    result = run_with(
+        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "1.0"}, "--out", str(tmp_path / "o")
+    )
+    assert result.returncode == 0, result.stderr
+    record = final_metric(result.stdout)
+    assert record["budget_exhausted"] is True
+    assert record["finetune"]["steps"] == 0 and "first_loss" not in record["finetune"]
+
+
 # Docking relabels with its SCP (about 0.2 s a state from an untrained policy's states): one round
 # from one start keeps it near a minute.
 @pytest.mark.parametrize(
@@ -364,10 +431,11 @@ def test_a_dagger_run_on_the_law_reports_its_relabelling(tmp_path, name, form, i
 
 
 def test_a_bad_lever_is_refused_in_one_line(tmp_path):
-    family = family_copy("rendezvous", tmp_path, POLICY_FORM='"mixed"', DAGGER_ITERS=99)
+    family = family_copy("rendezvous", tmp_path, POLICY_FORM='"mixed"', DAGGER_ITERS=99, FINETUNE_STEPS=-1)
     result = run(family / "train.py", cache=tmp_path / "cache")
     assert result.returncode != 0
     assert "POLICY_FORM must be one of" in result.stderr and "DAGGER_ITERS must be an int" in result.stderr
+    assert "FINETUNE_STEPS must be a non-negative int" in result.stderr
 
 
 def test_a_time_budget_cuts_training_and_the_run_is_scored_as_it_stands(tmp_path):

@@ -73,6 +73,8 @@ RESIDUAL_SCALE = 1.0  # residual form: the correction's bound per axis, a fracti
 BOX_AWARE_LOSS = False  # True: where the expert rides the thrust box, any output beyond it counts as exact
 DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour cloning)
 DAGGER_STARTS = 256  # training starts flown (and every visited state relabelled) per DAgger round
+FINETUNE_STEPS = 0  # closed-loop fine-tuning: gradient steps on the flown terminal distance (0: none)
+FINETUNE_LR = 0.0001  # its AdamW peak learning rate, annealed to 0 by a cosine schedule
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "rendezvous"
@@ -106,10 +108,13 @@ CONFIG_NAMES = (
     "BOX_AWARE_LOSS",
     "DAGGER_ITERS",
     "DAGGER_STARTS",
+    "FINETUNE_STEPS",
+    "FINETUNE_LR",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual", "costate")
 MAX_DAGGER_ITERS = 8
+FINETUNE_STARTS = 256  # training-pool starts flown per fine-tuning step (a fresh draw each step)
 
 
 class PlanModel:
@@ -254,6 +259,14 @@ def check_config(config: dict) -> None:
     starts, bound = config["DAGGER_STARTS"], POOL_DEMOS if iters else math.inf  # the pool's starts are flown
     if not (isinstance(starts, int) and not isinstance(starts, bool) and 1 <= starts <= bound):
         problems.append(f"DAGGER_STARTS must be an int in [1, {POOL_DEMOS}] with DAgger on")
+    steps = config["FINETUNE_STEPS"]
+    if not (isinstance(steps, int) and not isinstance(steps, bool) and steps >= 0):
+        problems.append("FINETUNE_STEPS must be a non-negative int")
+    rate = config["FINETUNE_LR"]
+    if not (
+        isinstance(rate, int | float) and not isinstance(rate, bool) and math.isfinite(rate) and rate > 0
+    ):
+        problems.append("FINETUNE_LR must be a positive finite number")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -481,6 +494,74 @@ def dagger(
     return policy, best_loss, len(obs), counts
 
 
+class ClosedLoop:
+    """Closed-loop fine-tuning's loss: the policy flown from a batch of starts through the env's own
+    dynamics (its (A, B), box clip and observation, in torch, float64) for the whole horizon, scored
+    by the mean terminal distance [m], the family's metric. Differentiable end to end: the gradient
+    reaches every step's action through the states after it (the clip passes none where it binds)."""
+
+    def __init__(self, device: torch.device):
+        a, b = PROBLEM.matrices()
+        self.a = torch.tensor(a.T, device=device)  # row states: x' = x A^T + (u_max a) B^T
+        self.b = torch.tensor(b.T * PROBLEM.u_max, device=device)
+
+    def terminal_distance(self, policy: Policy, starts: torch.Tensor) -> torch.Tensor:
+        """Each start's terminal distance [m] (N,), flown as the env flies it."""
+        states, horizon = starts, PROBLEM.horizon
+        for k in range(horizon):
+            tau = torch.full(
+                (len(states), 1), (horizon - k) / horizon, dtype=torch.float64, device=states.device
+            )
+            observed = torch.cat([states, tau], dim=1).float()  # the env shows float32 observations
+            raw = observed.double() if policy.on_law else None
+            action = policy((observed - policy.obs_mean) / policy.obs_std, raw).double().clamp(-1.0, 1.0)
+            states = states @ self.a + action @ self.b
+        return (states[:, :3].square().sum(dim=1) + 1e-12).sqrt()  # smooth at 0: a finite gradient
+
+    def __call__(self, policy: Policy, starts: torch.Tensor) -> torch.Tensor:
+        return self.terminal_distance(policy, starts).mean()
+
+
+def finetune(config: dict, policy: Policy, device: torch.device, generator: torch.Generator, budget: Budget):
+    """FINETUNE_STEPS steps of closed-loop fine-tuning after cloning (and DAgger): each flies the
+    policy from FINETUNE_STARTS starts drawn afresh from the training pool (never an evaluation
+    split) and descends :class:`ClosedLoop`'s mean terminal distance; AdamW, FINETUNE_LR annealed to 0
+    by a cosine schedule, the run's WEIGHT_DECAY and GRAD_CLIP, dropout off (the policy as it is
+    flown). A spent ``budget`` ends it before a step. Returns the policy and the fine-tuning's counts
+    (steps taken, the first and last steps' losses, seconds); fuel is not in the loss, only logged."""
+    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=PROBLEM).starts
+    starts = torch.as_tensor(pool, dtype=torch.float64, device=device)
+    loss_of = ClosedLoop(device)
+    optimizer = torch.optim.AdamW(
+        policy.parameters(), lr=config["FINETUNE_LR"], weight_decay=config["WEIGHT_DECAY"]
+    )
+    total = config["FINETUNE_STEPS"]
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total))
+    )
+    policy.eval()
+    losses, started = [], time.perf_counter()
+    for _ in range(total):
+        if budget.spent():
+            break
+        batch = torch.randint(len(starts), (FINETUNE_STARTS,), generator=generator).to(device)
+        loss = loss_of(policy, starts[batch])
+        if not torch.isfinite(loss):
+            raise SystemExit(
+                f"train.py: fine-tuning diverged: loss is {loss.item()} at step {len(losses) + 1}"
+            )
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(policy.parameters(), config["GRAD_CLIP"])
+        optimizer.step()
+        schedule.step()
+        losses.append(loss.item())
+    counts = {"steps": len(losses), "seconds": round(time.perf_counter() - started, 3)}
+    if losses:
+        counts |= {"first_loss": losses[0], "last_loss": losses[-1]}
+    return policy.eval(), counts
+
+
 def relabel(flight: Flight) -> tuple[np.ndarray, np.ndarray, Plans, dict]:
     """Observations (N H, 7) of every state a flight visited (steps 0..H-1, time-major), the expert's
     thrust [N] there and its whole re-plan (:class:`Plans`, one row per state): receding-horizon MPC
@@ -587,6 +668,9 @@ def main() -> None:
         policy, best_loss, n_train_pairs, dagger_counts = dagger(
             config, policy, obs, targets, device, generator, report, budget, best_loss
         )
+    finetune_counts = None
+    if config["FINETUNE_STEPS"]:
+        policy, finetune_counts = finetune(config, policy, device, generator, budget)
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
     splits = {"search": evaluate(policy, search)}
@@ -607,6 +691,7 @@ def main() -> None:
         "n_params": sum(p.numel() for p in policy.parameters()),
         "n_train_pairs": n_train_pairs,
         **({"dagger": dagger_counts} if dagger_counts else {}),
+        **({"finetune": finetune_counts} if finetune_counts else {}),
         **({"time_budget": budget.seconds, "budget_exhausted": budget.exhausted} if budget.seconds else {}),
         "seed": args.seed,
         "datasets": datasets,
