@@ -10,6 +10,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ from cwh_envs.datasets import evaluation_starts
 from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.observations import rendezvous_observation
 from cwh_envs.prepare import DataNeeds, load_train, required_sets
-from cwh_envs.rollout import fly
+from cwh_envs.rollout import control_effort, fly
 
 torch = needs_module("torch", "families")
 
@@ -344,6 +345,30 @@ def test_closed_loop_fine_tuning_flies_the_policy_as_the_env_does(trains, form):
     assert env.std() > 1e-3  # the starts end apart: a flight that ignored its policy would not match
 
 
+@pytest.mark.parametrize("form", ["direct", "residual"])
+def test_docking_fine_tuning_flies_the_policy_as_the_env_does_without_the_filter(trains, form):
+    """Docking's ClosedLoop: the env's terminal distances and energy, and the keep-out intrusion of
+    the env's own states, start by start."""
+    train = trains["docking"]
+    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 16, "N_LAYERS": 1}
+    torch.manual_seed(0)
+    policy = train.build_policy(
+        config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5
+    ).eval()
+    starts, goals = starts_of(train, 16)
+    env = fly(train.PROBLEM, policy.act, starts, goals)
+    with torch.no_grad():
+        distance, intrusion, energy = train.ClosedLoop(torch.device("cpu"), 0.0).flight(
+            policy, torch.as_tensor(starts), torch.as_tensor(goals)
+        )
+    np.testing.assert_allclose(distance.numpy(), env.terminal_distance, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(energy.numpy(), control_effort(env.thrust, train.PROBLEM)[0], rtol=1e-10)
+    standoff = train.PROBLEM.koz_radius + train.PROBLEM.margin
+    radius = np.linalg.norm(env.states[:, 1:, :3], axis=2)
+    np.testing.assert_allclose(intrusion.numpy(), np.maximum(standoff - radius, 0).sum(axis=1), atol=1e-8)
+    assert env.terminal_distance.std() > 1e-3
+
+
 def test_a_closed_loop_gradient_step_lowers_the_flown_distance(trains):
     """The loss's gradient reaches the network through the whole flight and points downhill: a small
     step against it lowers the mean terminal distance from the same starts."""
@@ -366,32 +391,66 @@ def test_a_closed_loop_gradient_step_lowers_the_flown_distance(trains):
     assert after < before
 
 
-def test_a_fine_tuning_run_reports_its_steps_and_a_spent_budget_skips_them(tmp_path):
-    family = family_copy(
-        "rendezvous", tmp_path, N_DEMOS=4, EPOCHS=2, HIDDEN_DIM=16, N_LAYERS=1, FINETUNE_STEPS=3
+def test_a_docking_gradient_step_lowers_its_loss_and_the_energy_weight_counts(trains):
+    train = trains["docking"]
+    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 16, "N_LAYERS": 1}
+    torch.manual_seed(1)
+    policy = train.build_policy(config, torch.zeros(train.OBS_DIM), torch.ones(train.OBS_DIM)).eval()
+    starts, goals = (torch.as_tensor(a) for a in starts_of(train, 16))
+    expert = torch.ones(16)  # a unit expert energy per start: the energy term is the batch's energy
+    loss_of = train.ClosedLoop(torch.device("cpu"), 0.5)
+    distance, intrusion, energy = (v.detach() for v in loss_of.flight(policy, starts, goals))
+    before = loss_of(policy, starts, goals, expert)
+    assert before.item() == pytest.approx(
+        (distance.mean() + intrusion.mean() + 0.5 * energy.sum() / 16).item()
     )
+    before.backward()
+    with torch.no_grad():
+        for p in policy.net.parameters():
+            p -= 1e-5 * p.grad
+        assert loss_of(policy, starts, goals, expert) < before
+
+
+@pytest.mark.parametrize("name", ["rendezvous", "docking"])
+def test_a_fine_tuning_run_reports_its_steps_and_keeps_its_share_of_a_budget(tmp_path, name):
+    family = family_copy(name, tmp_path, N_DEMOS=4, EPOCHS=2, HIDDEN_DIM=16, N_LAYERS=1, FINETUNE_STEPS=3)
     record = final_metric(
         run(family / "train.py", "--out", str(tmp_path / "out"), cache=tmp_path / "cache", check=True).stdout
     )
     tuned = record["finetune"]
     assert tuned["steps"] == 3 and math.isfinite(tuned["first_loss"]) and math.isfinite(tuned["last_loss"])
     assert record["config"]["FINETUNE_STEPS"] == 3
+    # Cloning that would outlast the budget stops at its share; fine-tuning gets the rest.
     family = family_copy(
-        "rendezvous",
+        name,
         tmp_path / "cut",
         N_DEMOS=8,
         EPOCHS=100000,
         BATCH_SIZE=16,
         HIDDEN_DIM=16,
         FINETUNE_STEPS=3,
+        FINETUNE_SHARE=0.6,
     )
     result = run_with(
-        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "1.0"}, "--out", str(tmp_path / "o")
+        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "4.0"}, "--out", str(tmp_path / "o")
     )
     assert result.returncode == 0, result.stderr
     record = final_metric(result.stdout)
-    assert record["budget_exhausted"] is True
-    assert record["finetune"]["steps"] == 0 and "first_loss" not in record["finetune"]
+    assert record["budget_exhausted"] is True and record["finetune"]["steps"] == 3
+    assert 1.6 <= record["train_seconds"] - record["finetune"]["seconds"] < 1.6 + 2.0
+
+
+def test_a_phase_of_a_budget_stops_at_its_share_and_marks_the_run_cut(trains):
+    budget = trains["rendezvous"].Budget(0.4)
+    budget.start()
+    cloning = budget.first(0.5)
+    assert not cloning.spent() and not budget.exhausted
+    time.sleep(0.25)
+    assert cloning.spent() and cloning.exhausted and budget.exhausted  # the phase was cut, so the run
+    assert not budget.spent()  # the whole still has its time
+    time.sleep(0.2)
+    assert budget.spent()
+    assert not trains["rendezvous"].Budget(None).first(0.5).spent()  # no budget, no limit
 
 
 # Docking relabels with its SCP (about 0.2 s a state from an untrained policy's states): one round
@@ -431,11 +490,14 @@ def test_a_dagger_run_on_the_law_reports_its_relabelling(tmp_path, name, form, i
 
 
 def test_a_bad_lever_is_refused_in_one_line(tmp_path):
-    family = family_copy("rendezvous", tmp_path, POLICY_FORM='"mixed"', DAGGER_ITERS=99, FINETUNE_STEPS=-1)
+    family = family_copy(
+        "rendezvous", tmp_path, POLICY_FORM='"mixed"', DAGGER_ITERS=99, FINETUNE_STEPS=-1, FINETUNE_SHARE=1.5
+    )
     result = run(family / "train.py", cache=tmp_path / "cache")
     assert result.returncode != 0
     assert "POLICY_FORM must be one of" in result.stderr and "DAGGER_ITERS must be an int" in result.stderr
     assert "FINETUNE_STEPS must be a non-negative int" in result.stderr
+    assert "FINETUNE_SHARE must lie in (0, 1)" in result.stderr
 
 
 def test_a_time_budget_cuts_training_and_the_run_is_scored_as_it_stands(tmp_path):

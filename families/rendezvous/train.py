@@ -17,7 +17,9 @@ fly the policy from training starts, relabel every visited state with the expert
 horizon (receding-horizon MPC, cwh_envs.mpc, whose soft-terminal re-plan labels the states the hard
 expert cannot reach from), add them to the training set and train on. BOX_AWARE_LOSS stops
 penalising an output beyond the thrust box where the expert's action is at the box (the env clips
-both to the same thrust). It is then flown in closed loop from held-out
+both to the same thrust). FINETUNE_STEPS > 0 fine-tunes the policy in closed loop after cloning: flown
+through the dynamics in torch (class ClosedLoop), it descends the mean terminal distance itself. It
+is then flown in closed loop from held-out
 starts at once through the env's own batched core (cwh_envs.rollout.fly); the primary metric is
 the mean terminal distance to the target in metres (lower is better). By default the starts are
 the 128 of the search split, the only ones a search may select on; ``--eval-split test`` scores
@@ -75,6 +77,7 @@ DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour c
 DAGGER_STARTS = 256  # training starts flown (and every visited state relabelled) per DAgger round
 FINETUNE_STEPS = 0  # closed-loop fine-tuning: gradient steps on the flown terminal distance (0: none)
 FINETUNE_LR = 0.0001  # its AdamW peak learning rate, annealed to 0 by a cosine schedule
+FINETUNE_SHARE = 0.5  # under a time budget: the share kept for fine-tuning (cloning and DAgger get the rest)
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "rendezvous"
@@ -110,6 +113,7 @@ CONFIG_NAMES = (
     "DAGGER_STARTS",
     "FINETUNE_STEPS",
     "FINETUNE_LR",
+    "FINETUNE_SHARE",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual", "costate")
@@ -267,6 +271,9 @@ def check_config(config: dict) -> None:
         isinstance(rate, int | float) and not isinstance(rate, bool) and math.isfinite(rate) and rate > 0
     ):
         problems.append("FINETUNE_LR must be a positive finite number")
+    share = config["FINETUNE_SHARE"]
+    if not (isinstance(share, int | float) and not isinstance(share, bool) and 0 < share < 1):
+        problems.append("FINETUNE_SHARE must lie in (0, 1)")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -349,10 +356,11 @@ class PlanLoss:
 
 class Budget:
     """The run's training-time budget (TIME_BUDGET_VARIABLE, seconds): training stops at the first
-    gradient step past it, and the run is scored as it stands (``budget_exhausted`` in the record)."""
+    gradient step past it, and the run is scored as it stands (``budget_exhausted`` in the record).
+    :meth:`first` gives a phase the first share of it, leaving the rest to a later phase."""
 
-    def __init__(self, seconds: float | None):
-        self.seconds, self.started, self.exhausted = seconds, None, False
+    def __init__(self, seconds: float | None, whole: Budget | None = None):
+        self.seconds, self.started, self.exhausted, self.whole = seconds, None, False, whole
 
     def start(self) -> None:
         """The clock runs from here: training time only (data and evaluation are the loop's allowance)."""
@@ -373,10 +381,21 @@ class Budget:
             )
         return cls(seconds)
 
+    def first(self, share: float) -> Budget:
+        """The first ``share`` of this budget, on its clock (no limit without one): a phase that runs
+        it out has been cut, and so has the run (this budget's ``exhausted``)."""
+        part = Budget(None if self.seconds is None else share * self.seconds, whole=self)
+        part.started = self.started
+        return part
+
     def spent(self) -> bool:
-        if self.seconds is not None and time.perf_counter() - self.started >= self.seconds:
+        """Whether the time is up; the first time it is, the budget (and the whole it is part of) was cut."""
+        over = self.seconds is not None and time.perf_counter() - self.started >= self.seconds
+        if over:
             self.exhausted = True
-        return self.exhausted
+            if self.whole is not None:
+                self.whole.exhausted = True
+        return over
 
 
 def train(
@@ -662,11 +681,13 @@ def main() -> None:
     started = time.perf_counter()
     generator = torch.Generator(device="cpu").manual_seed(args.seed)
     budget.start()
-    policy, best_loss = train(config, obs, targets, device, generator, report, budget=budget)
+    # With fine-tuning on, cloning and DAgger stop at their share of a time budget: it keeps the rest.
+    cloning = budget.first(1.0 - config["FINETUNE_SHARE"]) if config["FINETUNE_STEPS"] else budget
+    policy, best_loss = train(config, obs, targets, device, generator, report, budget=cloning)
     n_train_pairs, dagger_counts = len(obs), None
     if config["DAGGER_ITERS"]:
         policy, best_loss, n_train_pairs, dagger_counts = dagger(
-            config, policy, obs, targets, device, generator, report, budget, best_loss
+            config, policy, obs, targets, device, generator, report, cloning, best_loss
         )
     finetune_counts = None
     if config["FINETUNE_STEPS"]:
