@@ -356,6 +356,26 @@ class Budget:
         return over
 
 
+class Descent:
+    """AdamW from a peak rate annealed to 0 by a cosine over ``total_steps`` (one fixed schedule, no
+    warm-up), the run's WEIGHT_DECAY, every step's gradient clipped to GRAD_CLIP: cloning's and
+    fine-tuning's optimiser."""
+
+    def __init__(self, policy: Policy, rate: float, config: dict, total_steps: int):
+        self.parameters, self.grad_clip = list(policy.parameters()), config["GRAD_CLIP"]
+        self.optimizer = torch.optim.AdamW(self.parameters, lr=rate, weight_decay=config["WEIGHT_DECAY"])
+        self.schedule = torch.optim.lr_scheduler.LambdaLR(
+            self.optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total_steps))
+        )
+
+    def step(self, loss: torch.Tensor) -> None:
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.parameters, self.grad_clip)
+        self.optimizer.step()
+        self.schedule.step()
+
+
 def train(
     config: dict,
     obs: np.ndarray,
@@ -383,15 +403,8 @@ def train(
     x = torch.as_tensor((obs - mean) / std, dtype=torch.float32, device=device)
     raw = torch.as_tensor(obs, dtype=torch.float64, device=device) if policy.residual else None
     y = torch.as_tensor(actions / PROBLEM.u_max, dtype=torch.float32, device=device)
-    optimizer = torch.optim.AdamW(
-        policy.parameters(), lr=config["LEARNING_RATE"], weight_decay=config["WEIGHT_DECAY"]
-    )
     steps_per_epoch = math.ceil(len(x) / config["BATCH_SIZE"])
-    total_steps = config["EPOCHS"] * steps_per_epoch
-    # Cosine from the peak rate to 0 over the whole run: one fixed schedule, no warm-up.
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total_steps))
-    )
+    descent = Descent(policy, config["LEARNING_RATE"], config, config["EPOCHS"] * steps_per_epoch)
     best_loss = math.inf
     run_epochs = config["EPOCHS"] * (1 + config["DAGGER_ITERS"])
     progress_epochs = {math.ceil(run_epochs * k / PROGRESS_POINTS) for k in range(1, PROGRESS_POINTS + 1)}
@@ -405,11 +418,7 @@ def train(
             if config["BOX_AWARE_LOSS"]:
                 error = box_aware(error, y[batch])
             loss = error.square().sum(dim=1).mean()
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            nn.utils.clip_grad_norm_(policy.parameters(), config["GRAD_CLIP"])
-            optimizer.step()
-            schedule.step()
+            descent.step(loss)
             epoch_loss += loss.detach() * len(batch)
             seen += len(batch)
             if budget is not None and budget.spent():
@@ -547,13 +556,8 @@ def finetune(config: dict, policy: Policy, device: torch.device, generator: torc
     goals = torch.as_tensor(pool.goals, dtype=torch.float64, device=device)
     expert_energy = torch.as_tensor(control_effort(pool.trajectory_thrust(), PROBLEM)[0], device=device)
     loss_of = ClosedLoop(device, config["FINETUNE_ENERGY"])
-    optimizer = torch.optim.AdamW(
-        policy.parameters(), lr=config["FINETUNE_LR"], weight_decay=config["WEIGHT_DECAY"]
-    )
     total = config["FINETUNE_STEPS"]
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total))
-    )
+    descent = Descent(policy, config["FINETUNE_LR"], config, total)
     policy.eval()
     losses, started = [], time.perf_counter()
     for _ in range(total):
@@ -565,11 +569,7 @@ def finetune(config: dict, policy: Policy, device: torch.device, generator: torc
             raise SystemExit(
                 f"train.py: fine-tuning diverged: loss is {loss.item()} at step {len(losses) + 1}"
             )
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        nn.utils.clip_grad_norm_(policy.parameters(), config["GRAD_CLIP"])
-        optimizer.step()
-        schedule.step()
+        descent.step(loss)
         losses.append(loss.item())
     counts = {"steps": len(losses), "seconds": round(time.perf_counter() - started, 3)}
     if losses:
