@@ -45,6 +45,15 @@ def run_with(script: Path, tmp_path: Path, env: dict, *args: str) -> subprocess.
     )
 
 
+def budgeted_record(family: Path, tmp_path: Path, seconds: str) -> dict:
+    """The FINAL_METRIC record of the family's train.py run under AUTORESEARCH_TIME_BUDGET=seconds."""
+    result = run_with(
+        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": seconds}, "--out", str(tmp_path / "out")
+    )
+    assert result.returncode == 0, result.stderr
+    return final_metric(result.stdout)
+
+
 @pytest.fixture(scope="module")
 def trains():
     return {name: load_train(ROOT / "families" / name) for name in FAMILIES}
@@ -431,11 +440,7 @@ def test_a_fine_tuning_run_reports_its_steps_and_keeps_its_share_of_a_budget(tmp
         FINETUNE_STEPS=3,
         FINETUNE_SHARE=0.6,
     )
-    result = run_with(
-        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "4.0"}, "--out", str(tmp_path / "o")
-    )
-    assert result.returncode == 0, result.stderr
-    record = final_metric(result.stdout)
+    record = budgeted_record(family, tmp_path, "4.0")
     assert record["budget_exhausted"] is True and record["finetune"]["steps"] == 3
     assert 1.6 <= record["train_seconds"] - record["finetune"]["seconds"] < 1.6 + 2.0
 
@@ -504,11 +509,7 @@ def test_a_time_budget_cuts_training_and_the_run_is_scored_as_it_stands(tmp_path
     """AUTORESEARCH_TIME_BUDGET: training stops at the first step past it, the policy is scored on
     the split as usual and the record says it was cut; without the variable nothing changes."""
     family = family_copy("rendezvous", tmp_path, N_DEMOS=8, EPOCHS=100000, BATCH_SIZE=16)
-    result = run_with(
-        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "1.5"}, "--out", str(tmp_path / "out")
-    )
-    assert result.returncode == 0, result.stderr
-    record = final_metric(result.stdout)
+    record = budgeted_record(family, tmp_path, "1.5")
     assert record["budget_exhausted"] is True and record["time_budget"] == 1.5
     assert 1.5 <= record["train_seconds"] < 30
     assert math.isfinite(record["mean_terminal_distance"]) and "runaway_share" in record
@@ -554,10 +555,6 @@ def test_a_budget_spent_before_dagger_keeps_the_first_trainings_loss(tmp_path, n
         DAGGER_ITERS=2,
         DAGGER_STARTS=4,
     )
-    result = run_with(
-        family / "train.py", tmp_path, {"AUTORESEARCH_TIME_BUDGET": "1.0"}, "--out", str(tmp_path / "o")
-    )
-    assert result.returncode == 0, result.stderr
-    record = final_metric(result.stdout)
+    record = budgeted_record(family, tmp_path, "1.0")
     assert record["budget_exhausted"] is True and record["dagger"]["rounds"] == 0
     assert math.isfinite(record["best_train_loss"])
