@@ -116,7 +116,8 @@ class Family:
 
     @property
     def best(self) -> dict[str, Any] | None:
-        """The current best: {"config", "metric"} (family.json's)."""
+        """The current best: {"config", "metric"}, and "time_budget" (training seconds) when it was
+        certified under one (family.json's)."""
         return self.registry.get("best")
 
     def search_registry(self) -> dict[str, Any]:
@@ -321,6 +322,15 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
     for key in ("metric", "std"):
         if isinstance(best, dict) and best.get(key) is not None and not _number(best[key]):
             bad(f"best.{key}", "must be a finite number or null")
+    if (
+        isinstance(best, dict)
+        and "time_budget" in best
+        and not (_number(best["time_budget"]) and best["time_budget"] > 0)
+    ):
+        bad(
+            "best.time_budget",
+            "must be a positive number of seconds (the training budget it was certified under)",
+        )
     axes = registry.get("axes")
     if not isinstance(axes, list) or not axes or not all(isinstance(a, str) and a for a in axes):
         bad("axes", "must be a non-empty list of names")

@@ -9,10 +9,13 @@ data lives in the ledger, which the audit alone writes (docs/audit.md):
   "seed_noise": {mean, std, k, seeds, values, n_feasible, metric, measured_at, runs_dir, failed,
                  pinned: {baseline, files}, test: {mean, std, k, values, n_feasible}},
   "promotions": [{config, metric, std, n, split, by_split: {search: ..., test: ...},
-                  source: {campaign, run_id, step}, distilled?: {...}, remeasured?: "...",
-                  pruned_from?: config_id, dropped?: [...]}, ...]
+                  source: {campaign, run_id, step}, time_budget?: seconds, distilled?: {...},
+                  remeasured?: "...", pruned_from?: config_id, dropped?: [...]}, ...]
 }
 ```
+
+A promotion certified under a training time budget (the campaign's ``time_budget``: every run it
+reseeded was granted it) keeps it, in both files: the recipe is defined with it.
 
 ``promotions`` is the history of the family best, oldest first; the last is the current best's
 entry when family.json's best has its configuration. A family written before the ledger kept both in
@@ -32,7 +35,7 @@ from typing import Any, TypeVar
 from autoresearch.journal import JournalError, locked, read_json, write_json_atomic
 
 LEDGER_FILE = "ledger.json"
-BEST_FIELDS = ("config", "metric")  # what family.json keeps of a promotion
+BEST_FIELDS = ("config", "metric", "time_budget")  # what family.json keeps of a promotion
 T = TypeVar("T")
 
 
@@ -79,8 +82,10 @@ class Ledger:
 
 
 def best_of(promotion: dict[str, Any]) -> dict[str, Any]:
-    """What family.json holds of a promotion: the configuration and its certified number."""
-    return {field: promotion.get(field) for field in BEST_FIELDS}
+    """What family.json holds of a promotion: the configuration, its certified number and the training
+    time budget it was certified under (when it had one)."""
+    best = {"config": promotion.get("config"), "metric": promotion.get("metric")}
+    return {**best, **({"time_budget": promotion["time_budget"]} if "time_budget" in promotion else {})}
 
 
 def update(

@@ -13,7 +13,8 @@ test split, 1024 screened starts), it flies:
   the PD law (through the filter on docking): nothing learned;
 - behaviour cloning at the family's promoted best (``family.json``) and at the best recipe a
   key-free agent campaign certified (:data:`AGENT_RECIPES`), each trained by the family's own
-  train.py at every seed of ``--seeds``;
+  train.py at every seed of ``--seeds`` (the family best under the training time budget it was
+  certified under, when its entry names one: ``AUTORESEARCH_TIME_BUDGET``, as the loop grants it);
 - SB3 PPO and SAC (examples/sb3_compare.py's hyperparameters and budgets) at the same seeds.
 
 Each row is scored by the family's own metric code (its train.py's ``rendezvous_metrics`` /
@@ -38,6 +39,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 import time
@@ -49,6 +51,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from autoresearch.editable import patch
+from autoresearch.execution.runner import TIME_BUDGET_ENV
 from cwh_envs.controllers import MinEnergyFeedback, pd_action
 from cwh_envs.core import filter_actions
 from cwh_envs.datasets import evaluation_set
@@ -201,6 +204,7 @@ class Entry:
     make: Any
     source: str
     config: dict = field(default_factory=dict)
+    time_budget: float | None = None  # training seconds train.py is granted (the recipe's, when certified so)
     starts: int | None = None  # fewer starts than the split (MPC on constrained docking)
 
 
@@ -253,20 +257,22 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
     family_json = json.loads((ROOT / "families" / task.name / "family.json").read_text(encoding="utf-8"))
     best = family_json.get("best")
     recipes = []
-    if best:
-        recipes.append(("family best (BC)", f"families/{task.name}/family.json best", best["config"]))
+    if best:  # trained under the budget it was certified under, if any: EPOCHS may not fit in it
+        recipe = (best["config"], best.get("time_budget"))
+        recipes.append(("family best (BC)", f"families/{task.name}/family.json best", *recipe))
     source, config = AGENT_RECIPES[task.name]
-    recipes.append(("key-free agent best (BC)", source, config))
-    for name, source, config in recipes:
+    recipes.append(("key-free agent best (BC)", source, config, None))
+    for name, source, config, budget in recipes:
         cbf = bool({**task.defaults(), **config}.get("RUNTIME_CBF_FILTER", False))
         rows.append(
             Entry(
                 name,
                 "bc",
                 cbf,
-                lambda seed, c=config, n=name: trained_bc(task, work, n, c, seed),
+                lambda seed, c=config, n=name, b=budget: trained_bc(task, work, n, c, seed, b),
                 source,
                 config,
+                budget,
             )
         )
     for algo in ("ppo", "sac"):
@@ -303,10 +309,11 @@ def slug(name: str) -> str:
     return "".join(c if c.isalnum() else "-" for c in name.lower()).strip("-")
 
 
-def trained_bc(task: Task, work: Path, name: str, config: dict, seed: int):
-    """The family's train.py with ``config`` patched into its editable block, trained at ``seed``
-    (once: the policy is kept under ``work``), loaded as a policy on observations."""
-    run = work / task.name / slug(name) / f"s{seed}"
+def trained_bc(task: Task, work: Path, name: str, config: dict, seed: int, time_budget: float | None = None):
+    """The family's train.py with ``config`` patched into its editable block, trained at ``seed`` and
+    granted ``time_budget`` training seconds when given (as the loop grants them), once: the policy is
+    kept under ``work``, beside its runs.jsonl record; loaded as a policy on observations."""
+    run = work / task.name / slug(name) / (f"s{seed}" + (f"-budget{time_budget:g}" if time_budget else ""))
     saved = run / "policy.pt"
     if saved.exists():
         policy, record = task.train.load_policy(saved)
@@ -315,12 +322,16 @@ def trained_bc(task: Task, work: Path, name: str, config: dict, seed: int):
     run.mkdir(parents=True, exist_ok=True)
     source = (ROOT / "families" / task.name / "train.py").read_text(encoding="utf-8")
     (run / "train.py").write_text(patch(source, config), encoding="utf-8")
+    env = {k: v for k, v in os.environ.items() if k != TIME_BUDGET_ENV}
+    if time_budget is not None:
+        env[TIME_BUDGET_ENV] = f"{time_budget:g}"
     print(f"[train] {task.name}: {name} at seed {seed} ...", flush=True)
     started = time.perf_counter()
     with open(run / "stdout.txt", "w", encoding="utf-8") as log:
         subprocess.run(
             [sys.executable, "train.py", "--seed", str(seed), "--out", ".", "--runs-log", "runs.jsonl"],
             cwd=run,
+            env=env,
             check=True,
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -518,6 +529,8 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
         }
     if entry.config:
         out["config"] = entry.config
+    if entry.time_budget:
+        out["time_budget"] = entry.time_budget
     if "subset" in per_seed[0]:
         out["subset"] = per_seed[0]["subset"]
     for counts in ("mpc", "mpc_dispersed"):
@@ -641,6 +654,8 @@ def main(argv=None) -> None:
                 "seeds": args.seeds if entry.kind != "classical" else None,
                 "config": entry.config,
                 "starts": entry.starts,
+                # only where one is granted: the rows measured before budgets stay cached
+                **({"time_budget": entry.time_budget} if entry.time_budget else {}),
             }
             cached = (
                 json.loads(cache.read_text(encoding="utf-8")) if cache.exists() and not args.fresh else {}

@@ -47,13 +47,18 @@ def family_best(family_dir: Path) -> dict | None:
 
 
 def run_campaign(
-    family: Family, root: Path, proposer: Proposer, iterations: int, timeout: float = 60.0
+    family: Family,
+    root: Path,
+    proposer: Proposer,
+    iterations: int,
+    timeout: float = 60.0,
+    time_budget: float | None = None,
 ) -> Path:
     """A campaign directory as ``autoresearch loop`` writes it (campaign.json included)."""
     root.mkdir(parents=True)
-    CampaignMeta.new(
-        family, proposer.name, {"timeout_per_run": timeout, "seed": 0, "max_iters": iterations}
-    ).write(root)
+    settings = {"timeout_per_run": timeout, "seed": 0, "max_iters": iterations, "time_budget": time_budget}
+    CampaignMeta.new(family, proposer.name, settings).write(root)
     budgets = Budgets(max_iters=iterations, plateau_window=10**6)
-    Orchestrator(family, proposer, root, LoopSettings(proposer.name, budgets, timeout_per_run=timeout)).run()
+    loop = LoopSettings(proposer.name, budgets, timeout_per_run=timeout, time_budget=time_budget)
+    Orchestrator(family, proposer, root, loop).run()
     return root

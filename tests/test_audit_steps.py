@@ -80,6 +80,24 @@ def test_verify_promotes_the_reproducible_candidate_not_the_single_seed_best(sce
     }
 
 
+def test_a_promotion_keeps_the_training_budget_it_was_certified_under(tmp_path):
+    """A campaign that granted its runs a time budget promotes a recipe defined with it: the ledger's
+    entry and family.json's best both carry it (scenario_a's best, certified without one, has none)."""
+    family = copy_family(AUDIT_FAMILY, tmp_path / "family")
+    root = run_campaign(family, tmp_path / "campaign", ScriptedProposer([P1]), iterations=2, time_budget=30.0)
+    measure_noise(family, SERIAL, k=4, campaign=open_campaign(root))
+    verified = verify(open_campaign(root), LocalExecutor(2), top=1, n_seeds=4)
+    assert verified["family_best"]["updated"]
+    assert family_best(family.path)["time_budget"] == 30.0
+    best = read_json(family.path / "family.json")["best"]
+    assert best == {
+        "config": full(family, P1),
+        "metric": verified["candidates"][0]["mu_r"],
+        "time_budget": 30.0,
+    }
+    assert Family.load(family.path).best["time_budget"] == 30.0  # a valid registry
+
+
 def test_prune_decides_every_case_of_eq_loodecision(scenario_a):
     _, _, _, pruned = scenario_a
     d = {x["param"]: x for x in pruned["decisions"]}

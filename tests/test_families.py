@@ -408,8 +408,10 @@ def test_family_json_matches_the_contract_and_train_py(name):
         family.space.validate_full(family.best["config"])
         promoted = family.ledger.current(family.best)["config"]  # where it came from (keys it predates aside)
         assert promoted == {k: family.best["config"][k] for k in promoted}
-    # family.json is the registry: the declaration and the current best, no measurement of the audit's
-    assert "seed_noise" not in registry and set(registry.get("best") or {}) <= {"config", "metric"}
+    # family.json is the registry: the declaration and the current best (with the training budget it
+    # was certified under, if any), no measurement of the audit's
+    assert "seed_noise" not in registry
+    assert set(registry.get("best") or {}) <= {"config", "metric", "time_budget"}
     assert (
         isinstance(registry["baseline"]["metric"], float)
         and registry["baseline"]["seed"] == family.default_seed

@@ -19,6 +19,7 @@ from extras import needs_module
 from test_families import family_copy, final_metric, run
 
 from cwh_envs import experts
+from cwh_envs.constraints import cone_terms, speed_margin
 from cwh_envs.controllers import MinEnergyFeedback, pd_action
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.mpc import RecedingHorizon
@@ -378,6 +379,63 @@ def test_docking_fine_tuning_flies_the_policy_as_the_env_does_without_the_filter
     assert env.terminal_distance.std() > 1e-3
 
 
+@pytest.mark.parametrize("form", ["direct", "residual"])
+def test_constrained_fine_tuning_flies_the_policy_as_the_env_does_and_sums_every_excursion(trains, form):
+    """Constrained docking's ClosedLoop: the env's terminal distances and energy, and, from the env's
+    own states, the keep-out intrusion, the speed excess times the step and the distance outside the
+    cone within its radius (cwh_envs.constraints' slack), start by start."""
+    train = trains["docking-constrained"]
+    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 16, "N_LAYERS": 1}
+    torch.manual_seed(0)
+    policy = train.build_policy(
+        config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5
+    ).eval()
+    starts, goals = starts_of(train, 16)
+    env = fly(train.PROBLEM, policy.act, starts, goals)
+    with torch.no_grad():
+        distance, excursion, energy = train.ClosedLoop(torch.device("cpu"), 0.0).flight(
+            policy, torch.as_tensor(starts), torch.as_tensor(goals)
+        )
+    np.testing.assert_allclose(distance.numpy(), env.terminal_distance, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(energy.numpy(), control_effort(env.thrust, train.PROBLEM)[0], rtol=1e-10)
+    problem, visited = train.PROBLEM, env.states[:, 1:].reshape(-1, 6)  # steps 1..H
+    at = np.repeat(goals, problem.horizon, axis=0)
+    region, slack, _ = cone_terms(visited, at, problem.approach_cone)
+    expected = {
+        "keep_out": np.maximum(
+            problem.koz_radius + problem.margin - np.linalg.norm(visited[:, :3], axis=1), 0
+        ),
+        "speed": np.maximum(-speed_margin(visited, at, problem.speed_limit), 0) * problem.dt,
+        "cone": np.where(region, np.maximum(-slack, 0), 0),
+    }
+    for name, per_step in expected.items():
+        summed = per_step.reshape(len(starts), problem.horizon).sum(axis=1)
+        np.testing.assert_allclose(excursion[name].numpy(), summed, rtol=1e-9, atol=1e-8, err_msg=name)
+    # The flights break the speed limit, and the law's (which reach the port) the cone: not zeros compared.
+    assert excursion["speed"].max() > 1e-3 and (form == "direct" or excursion["cone"].max() > 1e-3)
+
+
+def test_a_constrained_gradient_step_lowers_its_loss_of_every_term(trains):
+    train = trains["docking-constrained"]
+    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 16, "N_LAYERS": 1}
+    torch.manual_seed(1)
+    policy = train.build_policy(config, torch.zeros(train.OBS_DIM), torch.ones(train.OBS_DIM)).eval()
+    starts, goals = (torch.as_tensor(a) for a in starts_of(train, 16))
+    expert = torch.ones(16)  # a unit expert energy per start: the energy term is the batch's energy
+    loss_of = train.ClosedLoop(torch.device("cpu"), 0.5)
+    distance, excursion, energy = loss_of.flight(policy, starts, goals)
+    beyond = sum(v.detach() for v in excursion.values())
+    before = loss_of(policy, starts, goals, expert)
+    assert before.item() == pytest.approx(
+        (distance.detach().mean() + beyond.mean() + 0.5 * energy.detach().sum() / 16).item()
+    )
+    before.backward()
+    with torch.no_grad():
+        for p in policy.net.parameters():
+            p -= 1e-5 * p.grad
+        assert loss_of(policy, starts, goals, expert) < before
+
+
 def test_a_closed_loop_gradient_step_lowers_the_flown_distance(trains):
     """The loss's gradient reaches the network through the whole flight and points downhill: a small
     step against it lowers the mean terminal distance from the same starts."""
@@ -445,8 +503,9 @@ def test_a_fine_tuning_run_reports_its_steps_and_keeps_its_share_of_a_budget(tmp
     assert 1.6 <= record["train_seconds"] - record["finetune"]["seconds"] < 1.6 + 2.0
 
 
-def test_a_phase_of_a_budget_stops_at_its_share_and_marks_the_run_cut(trains):
-    budget = trains["rendezvous"].Budget(0.4)
+@pytest.mark.parametrize("name", FAMILIES)
+def test_a_phase_of_a_budget_stops_at_its_share_and_marks_the_run_cut(trains, name):
+    budget = trains[name].Budget(0.4)
     budget.start()
     cloning = budget.first(0.5)
     assert not cloning.spent() and not budget.exhausted
@@ -455,7 +514,7 @@ def test_a_phase_of_a_budget_stops_at_its_share_and_marks_the_run_cut(trains):
     assert not budget.spent()  # the whole still has its time
     time.sleep(0.2)
     assert budget.spent()
-    assert not trains["rendezvous"].Budget(None).first(0.5).spent()  # no budget, no limit
+    assert not trains[name].Budget(None).first(0.5).spent()  # no budget, no limit
 
 
 # Docking relabels with its SCP (about 0.2 s a state from an untrained policy's states): one round
@@ -503,6 +562,17 @@ def test_a_bad_lever_is_refused_in_one_line(tmp_path):
     assert "POLICY_FORM must be one of" in result.stderr and "DAGGER_ITERS must be an int" in result.stderr
     assert "FINETUNE_STEPS must be a non-negative int" in result.stderr
     assert "FINETUNE_SHARE must lie in (0, 1)" in result.stderr
+
+
+def test_a_bad_constrained_fine_tuning_lever_is_refused_in_one_line(tmp_path):
+    family = family_copy(
+        "docking-constrained", tmp_path, FINETUNE_STEPS=2.5, FINETUNE_LR=0, FINETUNE_ENERGY=-1.0
+    )
+    result = run(family / "train.py", cache=tmp_path / "cache")
+    assert result.returncode != 0 and len(result.stderr.strip().splitlines()) == 1
+    for problem in ("FINETUNE_STEPS must be a non-negative int", "FINETUNE_LR must be a positive finite"):
+        assert problem in result.stderr
+    assert "FINETUNE_ENERGY must be a non-negative finite number" in result.stderr
 
 
 def test_a_time_budget_cuts_training_and_the_run_is_scored_as_it_stands(tmp_path):

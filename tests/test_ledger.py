@@ -111,7 +111,8 @@ def test_the_committed_families_keep_the_registry_and_the_ledger_apart():
         family_dir = ROOT / "families" / name
         registry = json.loads((family_dir / "family.json").read_text())
         book = json.loads((family_dir / LEDGER_FILE).read_text())
-        assert "seed_noise" not in registry and set(registry.get("best") or {}) <= {"config", "metric"}
+        assert "seed_noise" not in registry
+        assert set(registry.get("best") or {}) <= {"config", "metric", "time_budget"}
         assert book["seed_noise"]["k"] == 10 and "test" in book["seed_noise"]
         if registry.get("best"):
             promoted, best = book["promotions"][-1], registry["best"]
@@ -120,6 +121,20 @@ def test_the_committed_families_keep_the_registry_and_the_ledger_apart():
             assert {k: best["config"][k] for k in promoted["config"]} == promoted["config"]
             assert grown == {k: registry["baseline"]["config"][k] for k in grown}
             assert promoted["metric"] == best["metric"]
+            assert promoted.get("time_budget") == best.get("time_budget")  # the budget it was certified under
+
+
+@pytest.mark.parametrize("budget", [0, -240.0, "240", True, None])
+def test_a_best_certified_under_a_budget_names_it_in_positive_seconds(tmp_path, budget):
+    family_dir = tmp_path / "fam"
+    shutil.copytree(AUDIT_FAMILY, family_dir, ignore=shutil.ignore_patterns("runs.jsonl*", "__pycache__"))
+    registry = json.loads((family_dir / "family.json").read_text())
+    best = {"config": registry["baseline"]["config"], "metric": 1.0, "time_budget": budget}
+    (family_dir / "family.json").write_text(json.dumps({**registry, "best": best}))
+    problem = "'best.time_budget' must be a positive number of seconds"
+    assert any(problem in p for p in family_problems(family_dir))
+    (family_dir / "family.json").write_text(json.dumps({**registry, "best": {**best, "time_budget": 240.0}}))
+    assert family_problems(family_dir) == []
 
 
 @pytest.mark.parametrize(

@@ -229,6 +229,8 @@ def promote(
         "split": candidate["split"],
         "by_split": candidate["by_split"],
         "source": {"campaign": campaign_ref(campaign), "run_id": candidate["source"]["run_id"], "step": step},
+        # the recipe is defined with the budget its reseeds trained under (EPOCHS may not fit in it)
+        **({"time_budget": campaign.time_budget} if campaign.time_budget is not None else {}),
         **extra,
     }
 

@@ -35,7 +35,11 @@ training set, each weighing DAGGER_WEIGHT in the loss, and train on. BOX_AWARE_L
 penalising an output beyond the thrust box where the expert's action is at the box (the env clips
 both to the same thrust). EXPERT_MARGIN solves the demonstrations (and DAgger's labels) with a wider
 keep-out standoff than the filter's 0.5 m, so that a policy cutting the expert's corner by less than
-the difference never wakes the filter.
+the difference never wakes the filter. FINETUNE_STEPS > 0 fine-tunes the policy in closed loop after
+cloning: flown through the dynamics in torch without the filter (class ClosedLoop), it descends the
+mean terminal distance plus its excursions beyond every constraint (keep-out intrusion, speed excess,
+distance outside the cone) plus FINETUNE_ENERGY x its energy over the expert's: the routing the
+filter cannot decide one step at a time.
 """
 
 from __future__ import annotations
@@ -84,6 +88,10 @@ DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour c
 DAGGER_STARTS = 32  # starts flown per DAgger round (SOCP relabels: 0.2 s or more a state off the expert path)
 DAGGER_STATES = 0  # states relabelled per DAgger round, drawn at random from those flown (0: every one)
 DAGGER_WEIGHT = 1.0  # loss weight of a relabelled pair against a demonstration pair's 1
+FINETUNE_STEPS = 0  # closed-loop fine-tuning: gradient steps on the flown distance and constraints (0: none)
+FINETUNE_LR = 0.0001  # its AdamW peak learning rate, annealed to 0 by a cosine schedule
+FINETUNE_SHARE = 0.5  # under a time budget: the share kept for fine-tuning (cloning and DAgger get the rest)
+FINETUNE_ENERGY = 0.0  # its loss's weight on the flight's energy over the expert's, from the same starts
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -130,6 +138,10 @@ CONFIG_NAMES = (
     "DAGGER_STARTS",
     "DAGGER_STATES",
     "DAGGER_WEIGHT",
+    "FINETUNE_STEPS",
+    "FINETUNE_LR",
+    "FINETUNE_SHARE",
+    "FINETUNE_ENERGY",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual")
@@ -137,6 +149,7 @@ EXPERT_MARGINS = (0.5, 0.75)  # one training pool (and recovery pool) each: prep
 MAX_DAGGER_ITERS = 8
 MAX_DAGGER_STATES = 4096
 MAX_DAGGER_WEIGHT = 1000.0
+FINETUNE_STARTS = 128  # training-pool starts flown per fine-tuning step (a fresh draw each step)
 
 
 class Policy(nn.Module):
@@ -258,6 +271,20 @@ def check_config(config: dict) -> None:
         isinstance(weight, int | float) and not isinstance(weight, bool) and 0 <= weight <= MAX_DAGGER_WEIGHT
     ):
         problems.append(f"DAGGER_WEIGHT must be a number in [0, {MAX_DAGGER_WEIGHT:g}]")
+    steps = config["FINETUNE_STEPS"]
+    if not (isinstance(steps, int) and not isinstance(steps, bool) and steps >= 0):
+        problems.append("FINETUNE_STEPS must be a non-negative int")
+    rate = config["FINETUNE_LR"]
+    if not (
+        isinstance(rate, int | float) and not isinstance(rate, bool) and math.isfinite(rate) and rate > 0
+    ):
+        problems.append("FINETUNE_LR must be a positive finite number")
+    share = config["FINETUNE_SHARE"]
+    if not (isinstance(share, int | float) and not isinstance(share, bool) and 0 < share < 1):
+        problems.append("FINETUNE_SHARE must lie in (0, 1)")
+    energy = config["FINETUNE_ENERGY"]
+    if not (isinstance(energy, int | float) and not isinstance(energy, bool) and 0 <= energy < math.inf):
+        problems.append("FINETUNE_ENERGY must be a non-negative finite number")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -306,10 +333,11 @@ def box_aware(error: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 class Budget:
     """The run's training-time budget (TIME_BUDGET_VARIABLE, seconds): training stops at the first
-    gradient step past it, and the run is scored as it stands (``budget_exhausted`` in the record)."""
+    gradient step past it, and the run is scored as it stands (``budget_exhausted`` in the record).
+    :meth:`first` gives a phase the first share of it, leaving the rest to a later phase."""
 
-    def __init__(self, seconds: float | None):
-        self.seconds, self.started, self.exhausted = seconds, None, False
+    def __init__(self, seconds: float | None, whole: Budget | None = None):
+        self.seconds, self.started, self.exhausted, self.whole = seconds, None, False, whole
 
     def start(self) -> None:
         """The clock runs from here: training time only (data and evaluation are the loop's allowance)."""
@@ -330,10 +358,41 @@ class Budget:
             )
         return cls(seconds)
 
+    def first(self, share: float) -> Budget:
+        """The first ``share`` of this budget, on its clock (no limit without one): a phase that runs
+        it out has been cut, and so has the run (this budget's ``exhausted``)."""
+        part = Budget(None if self.seconds is None else share * self.seconds, whole=self)
+        part.started = self.started
+        return part
+
     def spent(self) -> bool:
-        if self.seconds is not None and time.perf_counter() - self.started >= self.seconds:
+        """Whether the time is up; the first time it is, the budget (and the whole it is part of) was cut."""
+        over = self.seconds is not None and time.perf_counter() - self.started >= self.seconds
+        if over:
             self.exhausted = True
-        return self.exhausted
+            if self.whole is not None:
+                self.whole.exhausted = True
+        return over
+
+
+class Descent:
+    """AdamW from a peak rate annealed to 0 by a cosine over ``total_steps`` (one fixed schedule, no
+    warm-up), the run's WEIGHT_DECAY, every step's gradient clipped to GRAD_CLIP: cloning's and
+    fine-tuning's optimiser."""
+
+    def __init__(self, policy: Policy, rate: float, config: dict, total_steps: int):
+        self.parameters, self.grad_clip = list(policy.parameters()), config["GRAD_CLIP"]
+        self.optimizer = torch.optim.AdamW(self.parameters, lr=rate, weight_decay=config["WEIGHT_DECAY"])
+        self.schedule = torch.optim.lr_scheduler.LambdaLR(
+            self.optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total_steps))
+        )
+
+    def step(self, loss: torch.Tensor) -> None:
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        nn.utils.clip_grad_norm_(self.parameters, self.grad_clip)
+        self.optimizer.step()
+        self.schedule.step()
 
 
 def train(
@@ -366,15 +425,8 @@ def train(
     raw = torch.as_tensor(obs, dtype=torch.float64, device=device) if policy.residual else None
     y = torch.as_tensor(actions / PROBLEM.u_max, dtype=torch.float32, device=device)
     w = None if weights is None else torch.as_tensor(weights, dtype=torch.float32, device=device)
-    optimizer = torch.optim.AdamW(
-        policy.parameters(), lr=config["LEARNING_RATE"], weight_decay=config["WEIGHT_DECAY"]
-    )
     steps_per_epoch = math.ceil(len(x) / config["BATCH_SIZE"])
-    total_steps = config["EPOCHS"] * steps_per_epoch
-    # Cosine from the peak rate to 0 over the whole run: one fixed schedule, no warm-up.
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total_steps))
-    )
+    descent = Descent(policy, config["LEARNING_RATE"], config, config["EPOCHS"] * steps_per_epoch)
     best_loss = math.inf
     run_epochs = config["EPOCHS"] * (1 + config["DAGGER_ITERS"])
     progress_epochs = {math.ceil(run_epochs * k / PROGRESS_POINTS) for k in range(1, PROGRESS_POINTS + 1)}
@@ -392,11 +444,7 @@ def train(
                 loss = per_pair.mean()
             else:  # a batch of weight-0 pairs alone contributes nothing (0 / tiny)
                 loss = (per_pair * w[batch]).sum() / w[batch].sum().clamp_min(1e-12)
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            nn.utils.clip_grad_norm_(policy.parameters(), config["GRAD_CLIP"])
-            optimizer.step()
-            schedule.step()
+            descent.step(loss)
             epoch_loss += loss.detach() * len(batch)
             seen += len(batch)
             if budget is not None and budget.spent():
@@ -537,6 +585,105 @@ def relabel_sample(
     return states[:done], np.asarray(thrust).reshape(done, 3), labels
 
 
+class ClosedLoop:
+    """Closed-loop fine-tuning's loss: the policy flown from a batch of starts to their goals through
+    the env's own dynamics (its (A, B), box clip and float32 observation, in torch, float64) for the
+    whole horizon, without the CBF filter (a QP per step; the filter, if on, still guards every
+    evaluated flight): the mean terminal distance [m], plus each start's excursions beyond every
+    constraint summed over steps 1..H, each in metres:
+
+    - keep-out: ``relu(koz_radius + margin - |r|)`` (below the filter's standoff);
+    - speed: ``relu(|v| - v0 - v1 |r - g|) dt``, the distance flown over the limit in the step;
+    - cone: within its radius of the port, ``relu(cos(theta) |r - g| - a^T (r - g))``, how far
+      outside the cone (the constraint's own slack, cwh_envs.constraints);
+
+    plus ``energy_weight`` x the batch's energy over the expert's from the same starts.
+    Differentiable end to end (the clip passes no gradient where it binds, the cone's region is a
+    mask)."""
+
+    def __init__(self, device: torch.device, energy_weight: float):
+        a, b = PROBLEM.matrices()
+        self.a = torch.tensor(a.T, device=device)  # row states: x' = x A^T + (u_max a) B^T
+        self.b = torch.tensor(b.T * PROBLEM.u_max, device=device)
+        self.standoff = PROBLEM.koz_radius + PROBLEM.margin
+        self.v0, self.v1 = PROBLEM.speed_limit
+        half_angle, self.cone_radius = PROBLEM.approach_cone
+        self.cos = math.cos(math.radians(half_angle))
+        self.energy_weight = energy_weight
+
+    def flight(self, policy: Policy, starts: torch.Tensor, goals: torch.Tensor):
+        """Each start's terminal distance [m], its summed keep-out intrusion, speed excess and distance
+        outside the cone [m] (a dict of the three) and its energy [N^2 s], (N,) each, flown as the env
+        flies it without the filter."""
+        states, horizon = starts, PROBLEM.horizon
+        zero = torch.zeros(len(starts), dtype=torch.float64, device=starts.device)
+        excursion = {"keep_out": zero, "speed": zero, "cone": zero}
+        energy = zero
+        axis = goals / goals.norm(dim=1, keepdim=True)
+        for k in range(horizon):
+            tau = torch.full(
+                (len(states), 1), (horizon - k) / horizon, dtype=torch.float64, device=states.device
+            )
+            observed = torch.cat([states, goals, tau], dim=1).float()  # the env shows float32 observations
+            raw = observed.double() if policy.residual else None
+            action = policy((observed - policy.obs_mean) / policy.obs_std, raw).double().clamp(-1.0, 1.0)
+            states = states @ self.a + action @ self.b
+            radius = norm(states[:, :3])
+            offset = states[:, :3] - goals
+            distance, speed = norm(offset), norm(states[:, 3:])
+            outside = torch.relu(self.cos * distance - (axis * offset).sum(dim=1))
+            excursion = {
+                "keep_out": excursion["keep_out"] + torch.relu(self.standoff - radius),
+                "speed": excursion["speed"] + torch.relu(speed - self.v0 - self.v1 * distance) * PROBLEM.dt,
+                "cone": excursion["cone"] + torch.where(distance <= self.cone_radius, outside, 0.0),
+            }
+            energy = energy + (PROBLEM.u_max * action).square().sum(dim=1) * PROBLEM.dt
+        return norm(states[:, :3] - goals), excursion, energy
+
+    def __call__(self, policy: Policy, starts, goals, expert_energy: torch.Tensor) -> torch.Tensor:
+        distance, excursion, energy = self.flight(policy, starts, goals)
+        beyond = sum(excursion.values())
+        return distance.mean() + beyond.mean() + self.energy_weight * energy.sum() / expert_energy.sum()
+
+
+def norm(rows: torch.Tensor) -> torch.Tensor:
+    """Each row's Euclidean norm, smooth at 0 (the flight ends at the port: its gradient stays finite)."""
+    return (rows.square().sum(dim=1) + 1e-12).sqrt()
+
+
+def finetune(config: dict, policy: Policy, device: torch.device, generator: torch.Generator, budget: Budget):
+    """FINETUNE_STEPS steps of closed-loop fine-tuning after cloning (and DAgger): each flies the
+    policy from FINETUNE_STARTS starts drawn afresh from the training pool (never an evaluation
+    split) and descends :class:`ClosedLoop`'s loss; AdamW, FINETUNE_LR annealed to 0 by a cosine
+    schedule, the run's WEIGHT_DECAY and GRAD_CLIP, dropout off (the policy as it is flown). A spent
+    ``budget`` ends it before a step. Returns the policy and the fine-tuning's counts (steps taken,
+    the first and last steps' losses, seconds)."""
+    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=expert_problem(config))
+    starts = torch.as_tensor(pool.starts, dtype=torch.float64, device=device)
+    goals = torch.as_tensor(pool.goals, dtype=torch.float64, device=device)
+    expert_energy = torch.as_tensor(control_effort(pool.trajectory_thrust(), PROBLEM)[0], device=device)
+    loss_of = ClosedLoop(device, config["FINETUNE_ENERGY"])
+    total = config["FINETUNE_STEPS"]
+    descent = Descent(policy, config["FINETUNE_LR"], config, total)
+    policy.eval()
+    losses, started = [], time.perf_counter()
+    for _ in range(total):
+        if budget.spent():
+            break
+        batch = torch.randint(len(starts), (FINETUNE_STARTS,), generator=generator).to(device)
+        loss = loss_of(policy, starts[batch], goals[batch], expert_energy[batch])
+        if not torch.isfinite(loss):
+            raise SystemExit(
+                f"train.py: fine-tuning diverged: loss is {loss.item()} at step {len(losses) + 1}"
+            )
+        descent.step(loss)
+        losses.append(loss.item())
+    counts = {"steps": len(losses), "seconds": round(time.perf_counter() - started, 3)}
+    if losses:
+        counts |= {"first_loss": losses[0], "last_loss": losses[-1]}
+    return policy.eval(), counts
+
+
 def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, cbf: bool, dispersions=None) -> Flight:
     """Every start flown at once through the env's own batched core; no expert in the loop. With
     ``cbf`` every action passes the multi-constraint CBF filter (keep-out margin PROBLEM.margin)
@@ -670,12 +817,17 @@ def main() -> None:
     started = time.perf_counter()
     generator = torch.Generator(device="cpu").manual_seed(args.seed)
     budget.start()
-    policy, best_loss = train(config, obs, actions, device, generator, report, budget=budget)
+    # With fine-tuning on, cloning and DAgger stop at their share of a time budget: it keeps the rest.
+    cloning = budget.first(1.0 - config["FINETUNE_SHARE"]) if config["FINETUNE_STEPS"] else budget
+    policy, best_loss = train(config, obs, actions, device, generator, report, budget=cloning)
     n_train_pairs, dagger_counts = len(obs), None
     if config["DAGGER_ITERS"]:
         policy, best_loss, n_train_pairs, dagger_counts = dagger(
-            config, policy, obs, actions, device, generator, report, budget, best_loss
+            config, policy, obs, actions, device, generator, report, cloning, best_loss
         )
+    finetune_counts = None
+    if config["FINETUNE_STEPS"]:
+        policy, finetune_counts = finetune(config, policy, device, generator, budget)
     train_seconds = time.perf_counter() - started
     started = time.perf_counter()
     splits = {"search": evaluate(policy, search, cbf)}
@@ -696,6 +848,7 @@ def main() -> None:
         "n_params": sum(p.numel() for p in policy.parameters()),
         "n_train_pairs": n_train_pairs,
         **({"dagger": dagger_counts} if dagger_counts else {}),
+        **({"finetune": finetune_counts} if finetune_counts else {}),
         **({"time_budget": budget.seconds, "budget_exhausted": budget.exhausted} if budget.seconds else {}),
         "seed": args.seed,
         "datasets": datasets,
