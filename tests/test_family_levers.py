@@ -75,6 +75,37 @@ def starts_of(train, n: int):
     return starts, (goals if train.TASK == "docking" else None)
 
 
+def small_policy(train, form: str, seed: int = 0, standardised: bool = False):
+    """A 1 x 16 policy of ``form`` with random weights (torch seed ``seed``), in eval mode; its input
+    standardisation random unless ``standardised`` (then mean 0, std 1)."""
+    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 16, "N_LAYERS": 1}
+    torch.manual_seed(seed)
+    if standardised:
+        mean, std = torch.zeros(train.OBS_DIM), torch.ones(train.OBS_DIM)
+    else:
+        mean, std = torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5
+    return train.build_policy(config, mean, std).eval()
+
+
+def flown_both_ways(train, form: str):
+    """A small random policy of ``form`` flown from 16 starts by the env and by the docking families'
+    ClosedLoop (without the filter), its terminal distances and energies checked equal start by start;
+    returns the env's flight, the starts' goals and ClosedLoop's middle term (intrusion, excursions)."""
+    policy = small_policy(train, form)
+    starts, goals = starts_of(train, 16)
+    env = fly(train.PROBLEM, policy.act, starts, goals)
+    with torch.no_grad():
+        distance, middle, energy = train.ClosedLoop(torch.device("cpu"), 0.0).flight(
+            policy, torch.as_tensor(starts), torch.as_tensor(goals)
+        )
+    np.testing.assert_allclose(distance.numpy(), env.terminal_distance, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(energy.numpy(), control_effort(env.thrust, train.PROBLEM)[0], rtol=1e-10)
+    assert (
+        env.terminal_distance.std() > 1e-3
+    )  # the starts end apart: a flight ignoring its policy would not match
+    return env, goals, middle
+
+
 @pytest.mark.parametrize("name", FAMILIES)
 def test_the_defaults_are_plain_behaviour_cloning(trains, name):
     config = defaults(trains[name])
@@ -342,11 +373,7 @@ def test_a_pairs_loss_weight_scales_its_pull_and_weight_zero_pairs_move_nothing(
 def test_closed_loop_fine_tuning_flies_the_policy_as_the_env_does(trains, form):
     """ClosedLoop's torch flight is the env's: the same terminal distances, start by start."""
     train = trains["rendezvous"]
-    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 16, "N_LAYERS": 1}
-    torch.manual_seed(0)
-    policy = train.build_policy(
-        config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5
-    ).eval()
+    policy = small_policy(train, form)
     starts, _ = starts_of(train, 16)
     env = fly(train.PROBLEM, policy.act, starts).terminal_distance
     with torch.no_grad():
@@ -360,23 +387,10 @@ def test_docking_fine_tuning_flies_the_policy_as_the_env_does_without_the_filter
     """Docking's ClosedLoop: the env's terminal distances and energy, and the keep-out intrusion of
     the env's own states, start by start."""
     train = trains["docking"]
-    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 16, "N_LAYERS": 1}
-    torch.manual_seed(0)
-    policy = train.build_policy(
-        config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5
-    ).eval()
-    starts, goals = starts_of(train, 16)
-    env = fly(train.PROBLEM, policy.act, starts, goals)
-    with torch.no_grad():
-        distance, intrusion, energy = train.ClosedLoop(torch.device("cpu"), 0.0).flight(
-            policy, torch.as_tensor(starts), torch.as_tensor(goals)
-        )
-    np.testing.assert_allclose(distance.numpy(), env.terminal_distance, rtol=0, atol=1e-8)
-    np.testing.assert_allclose(energy.numpy(), control_effort(env.thrust, train.PROBLEM)[0], rtol=1e-10)
+    env, _, intrusion = flown_both_ways(train, form)
     standoff = train.PROBLEM.koz_radius + train.PROBLEM.margin
     radius = np.linalg.norm(env.states[:, 1:, :3], axis=2)
     np.testing.assert_allclose(intrusion.numpy(), np.maximum(standoff - radius, 0).sum(axis=1), atol=1e-8)
-    assert env.terminal_distance.std() > 1e-3
 
 
 @pytest.mark.parametrize("form", ["direct", "residual"])
@@ -385,19 +399,7 @@ def test_constrained_fine_tuning_flies_the_policy_as_the_env_does_and_sums_every
     own states, the keep-out intrusion, the speed excess times the step and the distance outside the
     cone within its radius (cwh_envs.constraints' slack), start by start."""
     train = trains["docking-constrained"]
-    config = {**defaults(train), "POLICY_FORM": form, "HIDDEN_DIM": 16, "N_LAYERS": 1}
-    torch.manual_seed(0)
-    policy = train.build_policy(
-        config, torch.randn(train.OBS_DIM).abs(), torch.rand(train.OBS_DIM) + 0.5
-    ).eval()
-    starts, goals = starts_of(train, 16)
-    env = fly(train.PROBLEM, policy.act, starts, goals)
-    with torch.no_grad():
-        distance, excursion, energy = train.ClosedLoop(torch.device("cpu"), 0.0).flight(
-            policy, torch.as_tensor(starts), torch.as_tensor(goals)
-        )
-    np.testing.assert_allclose(distance.numpy(), env.terminal_distance, rtol=0, atol=1e-8)
-    np.testing.assert_allclose(energy.numpy(), control_effort(env.thrust, train.PROBLEM)[0], rtol=1e-10)
+    env, goals, excursion = flown_both_ways(train, form)
     problem, visited = train.PROBLEM, env.states[:, 1:].reshape(-1, 6)  # steps 1..H
     at = np.repeat(goals, problem.horizon, axis=0)
     region, slack, _ = cone_terms(visited, at, problem.approach_cone)
@@ -409,7 +411,7 @@ def test_constrained_fine_tuning_flies_the_policy_as_the_env_does_and_sums_every
         "cone": np.where(region, np.maximum(-slack, 0), 0),
     }
     for name, per_step in expected.items():
-        summed = per_step.reshape(len(starts), problem.horizon).sum(axis=1)
+        summed = per_step.reshape(len(goals), problem.horizon).sum(axis=1)
         np.testing.assert_allclose(excursion[name].numpy(), summed, rtol=1e-9, atol=1e-8, err_msg=name)
     # The flights break the speed limit, and the law's (which reach the port) the cone: not zeros compared.
     assert excursion["speed"].max() > 1e-3 and (form == "direct" or excursion["cone"].max() > 1e-3)
@@ -417,9 +419,7 @@ def test_constrained_fine_tuning_flies_the_policy_as_the_env_does_and_sums_every
 
 def test_a_constrained_gradient_step_lowers_its_loss_of_every_term(trains):
     train = trains["docking-constrained"]
-    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 16, "N_LAYERS": 1}
-    torch.manual_seed(1)
-    policy = train.build_policy(config, torch.zeros(train.OBS_DIM), torch.ones(train.OBS_DIM)).eval()
+    policy = small_policy(train, "residual", seed=1, standardised=True)
     starts, goals = (torch.as_tensor(a) for a in starts_of(train, 16))
     expert = torch.ones(16)  # a unit expert energy per start: the energy term is the batch's energy
     loss_of = train.ClosedLoop(torch.device("cpu"), 0.5)
@@ -440,9 +440,7 @@ def test_a_closed_loop_gradient_step_lowers_the_flown_distance(trains):
     """The loss's gradient reaches the network through the whole flight and points downhill: a small
     step against it lowers the mean terminal distance from the same starts."""
     train = trains["rendezvous"]
-    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 16, "N_LAYERS": 1}
-    torch.manual_seed(1)
-    policy = train.build_policy(config, torch.zeros(train.OBS_DIM), torch.ones(train.OBS_DIM)).eval()
+    policy = small_policy(train, "residual", seed=1, standardised=True)
     starts = torch.as_tensor(starts_of(train, 32)[0])
     loss_of = train.ClosedLoop(torch.device("cpu"))
     before = loss_of(policy, starts)
@@ -460,9 +458,7 @@ def test_a_closed_loop_gradient_step_lowers_the_flown_distance(trains):
 
 def test_a_docking_gradient_step_lowers_its_loss_and_the_energy_weight_counts(trains):
     train = trains["docking"]
-    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 16, "N_LAYERS": 1}
-    torch.manual_seed(1)
-    policy = train.build_policy(config, torch.zeros(train.OBS_DIM), torch.ones(train.OBS_DIM)).eval()
+    policy = small_policy(train, "residual", seed=1, standardised=True)
     starts, goals = (torch.as_tensor(a) for a in starts_of(train, 16))
     expert = torch.ones(16)  # a unit expert energy per start: the energy term is the batch's energy
     loss_of = train.ClosedLoop(torch.device("cpu"), 0.5)
