@@ -6,7 +6,8 @@ seed noise, the promotions: autoresearch.ledger); campaigns and their runs live 
 (:meth:`Family.check_outside`). Every error names the file and field that is missing or invalid.
 
 A family may declare ``protocols``: named restrictions of its search space (``loop --protocol NAME``,
-:meth:`Family.under_protocol`), e.g. the paper's space within a wider one.
+:meth:`Family.under_protocol`), e.g. the paper's space within a wider one, and of what counts as
+feasible (a protocol's ``limits``: upper bounds on fields of a run's record, e.g. its fuel).
 
 A family that declares ``"test_split": true`` scores a run on a sealed test split when its
 train.py is given ``--eval-split test``. Only the audit asks for it; :meth:`Family.search_registry`
@@ -54,6 +55,13 @@ def _number(value: Any) -> bool:
         return False
 
 
+def _limits_ok(limits: Any) -> bool:
+    """A ``limits`` object: field names to finite numbers."""
+    return isinstance(limits, dict) and all(
+        isinstance(k, str) and k and _number(v) for k, v in limits.items()
+    )
+
+
 @dataclass(frozen=True)
 class Family:
     path: Path
@@ -87,6 +95,12 @@ class Family:
         return self.registry.get("constraints_field")
 
     @property
+    def limits(self) -> dict[str, float]:
+        """The campaign protocol's ``limits``: field -> the largest value a feasible run may report
+        (every split's metrics are held to them); empty outside such a protocol."""
+        return dict(self.registry.get("limits") or {})
+
+    @property
     def tail_fields(self) -> dict[str, str] | None:
         """family.json's ``tails``: the fields of a split's metrics that describe its worst starts,
         ``runaway_field`` (the share beyond the family's runaway bound) and ``worst_field``; None
@@ -116,8 +130,8 @@ class Family:
 
     @property
     def best(self) -> dict[str, Any] | None:
-        """The current best: {"config", "metric"}, and "time_budget" (training seconds) when it was
-        certified under one (family.json's)."""
+        """The current best: {"config", "metric"}, and "time_budget" (training seconds) and "limits"
+        (a protocol's) when it was certified under them (family.json's)."""
         return self.registry.get("best")
 
     def search_registry(self) -> dict[str, Any]:
@@ -142,24 +156,38 @@ class Family:
 
     def is_feasible(self, metrics: dict[str, Any]) -> bool:
         """A run counts as best or as reaching the target only when its feasibility field is true (in
-        its FINAL_METRIC object, or in one split's metrics)."""
+        its FINAL_METRIC object, or in one split's metrics) and it reports every limited field within
+        its limit (a field missing or not a number fails it)."""
         field = self.feasibility_field
-        return field is None or metrics.get(field) is True
+        if field is not None and metrics.get(field) is not True:
+            return False
+        return all(
+            _number(metrics.get(name)) and metrics[name] <= limit for name, limit in self.limits.items()
+        )
 
     def scored(self, final_metric: dict[str, Any]) -> ScoredRun:
         """What a run scored on each split, read from its valid FINAL_METRIC object."""
         return ScoredRun.read(final_metric, self.metric, self.is_feasible)
 
     def constraints(self, final_metric: dict[str, Any] | None) -> dict[str, float] | None:
-        """The run's graded constraints (name -> value, <= 0 satisfied) from its constraints field,
-        or None when the family declares none or its FINAL_METRIC object lacks a well-formed one."""
-        field = self.constraints_field
-        values = (final_metric or {}).get(field) if field else None
-        if not isinstance(values, dict) or not values:
+        """The run's graded constraints (name -> value, <= 0 satisfied): its constraints field's, and
+        for each limit ``<field>_over_limit`` (the field minus its limit). None when there are none,
+        or when its FINAL_METRIC object lacks a well-formed constraints field or a limited field."""
+        metrics, field = final_metric or {}, self.constraints_field
+        if field is None and not self.limits:
             return None
-        if not all(_number(v) for v in values.values()):
+        if field:
+            values = metrics.get(field)
+        else:  # the gate as 0/1 beside the limits, so that the graded constraints still grade it
+            gate = self.feasibility_field
+            values = {gate: 0.0 if metrics.get(gate) is True else 1.0} if gate else {}
+        if not isinstance(values, dict) or (field and not values):
             return None
-        return {str(name): float(v) for name, v in values.items()}
+        graded = {**values, **{f"{name}_over_limit": metrics.get(name) for name in self.limits}}
+        if not all(_number(v) for v in graded.values()):
+            return None
+        over = {f"{name}_over_limit": limit for name, limit in self.limits.items()}
+        return {str(name): float(v) - over.get(name, 0.0) for name, v in graded.items()}
 
     def completed(self, config: dict[str, Any]) -> dict[str, Any]:
         """An earlier run's configuration with every parameter the search space has gained since at
@@ -175,7 +203,8 @@ class Family:
         """This family searched under the protocol ``name`` (None: the whole declared space): every
         parameter of an excluded axis held at its baseline value, and the protocol's bounds in place
         of the declared ones. The train.py, the baseline and the best stay; the registry every
-        proposer is shown says which protocol it searches (``protocol``)."""
+        proposer is shown says which protocol it searches (``protocol``) and the ``limits`` a feasible
+        run is held to under it."""
         if name is None:
             return self
         if name not in self.protocols:
@@ -186,6 +215,8 @@ class Family:
         registry = json.loads(json.dumps(self.registry))
         registry["search_space"] = protocol_space(registry, name)
         registry["protocol"] = name
+        if self.registry["protocols"][name].get("limits"):
+            registry["limits"] = self.registry["protocols"][name]["limits"]
         space = SearchSpace.from_json(registry["search_space"], self.axes)
         return replace(self, registry=registry, space=space)
 
@@ -331,6 +362,8 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
             "best.time_budget",
             "must be a positive number of seconds (the training budget it was certified under)",
         )
+    if isinstance(best, dict) and "limits" in best and not _limits_ok(best["limits"]):
+        bad("best.limits", "must map field names to finite numbers (the limits it was certified under)")
     axes = registry.get("axes")
     if not isinstance(axes, list) or not axes or not all(isinstance(a, str) and a for a in axes):
         bad("axes", "must be a non-empty list of names")
@@ -352,6 +385,8 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
         return None, problems
     if baseline.get("metric") is not None and not _number(baseline["metric"]):
         bad("baseline.metric", "must be a finite number or null")
+    if "limits" in registry:  # a gate changed under a family's campaigns would re-judge them silently
+        bad("limits", "belongs in a protocol (protocols.NAME.limits), which each campaign records")
     problems += [f"{where}: {problem}" for problem in _protocol_problems(registry, tuple(axes))]
     return space, problems
 
@@ -426,11 +461,17 @@ def _protocol_problems(registry: dict[str, Any], axes: tuple[str, ...]) -> list[
         return ["'protocols' must map names to objects"]
     problems = []
     for name, protocol in protocols.items():
-        unknown = set(protocol) - {"exclude_axes", "bounds"}
+        unknown = set(protocol) - {"exclude_axes", "bounds", "limits"}
         excluded = protocol.get("exclude_axes", [])
         bounds = protocol.get("bounds", {})
+        limits = protocol.get("limits", {})
         if unknown or not isinstance(excluded, list) or not isinstance(bounds, dict):
-            problems.append(f"protocols.{name}: takes 'exclude_axes' (a list) and 'bounds' (an object) only")
+            problems.append(
+                f"protocols.{name}: takes 'exclude_axes' (a list), 'bounds' and 'limits' (objects) only"
+            )
+            continue
+        if not _limits_ok(limits):
+            problems.append(f"protocols.{name}: 'limits' must map field names to finite numbers")
             continue
         if set(excluded) - set(axes) or set(bounds) - set(registry["search_space"]):
             problems.append(f"protocols.{name}: names an axis or a parameter the family does not declare")

@@ -35,7 +35,7 @@ from typing import Any, TypeVar
 from autoresearch.journal import JournalError, locked, read_json, write_json_atomic
 
 LEDGER_FILE = "ledger.json"
-BEST_FIELDS = ("config", "metric", "time_budget")  # what family.json keeps of a promotion
+BEST_FIELDS = ("config", "metric", "time_budget", "limits")  # what family.json keeps of a promotion
 T = TypeVar("T")
 
 
@@ -82,10 +82,10 @@ class Ledger:
 
 
 def best_of(promotion: dict[str, Any]) -> dict[str, Any]:
-    """What family.json holds of a promotion: the configuration, its certified number and the training
-    time budget it was certified under (when it had one)."""
+    """What family.json holds of a promotion: the configuration, its certified number, and the training
+    time budget and the protocol's limits it was certified under (when it had them)."""
     best = {"config": promotion.get("config"), "metric": promotion.get("metric")}
-    return {**best, **({"time_budget": promotion["time_budget"]} if "time_budget" in promotion else {})}
+    return {**best, **{k: promotion[k] for k in ("time_budget", "limits") if k in promotion}}
 
 
 def update(

@@ -96,7 +96,8 @@ def family_hashes_as_seen(family_dir: Path, seen: dict[str, Any]) -> set[str]:
     did not see (each such subset is tried: a protocol shows a campaign an axis narrowed to its
     baseline, so which choices came later is not in ``seen``). One equals the recorded hash exactly
     when the family only grew (new parameters, which every earlier run held at their baseline value;
-    new choices, which no earlier run drew; new fields such as ``protocols``) or its baseline was
+    new choices, which no earlier run drew; new fields such as ``protocols``, and new protocols, which
+    no earlier campaign searched) or its baseline was
     measured again (the metric is a measurement, like the seed noise, and every campaign measures
     its own baseline first: the search split moving from 128 to 512 starts re-measured it); empty
     when family.json does not read."""
@@ -106,6 +107,8 @@ def family_hashes_as_seen(family_dir: Path, seen: dict[str, Any]) -> set[str]:
         kept = {k: v for k, v in registry.items() if k not in AUDIT_WRITES + AUDIT_READS and k in seen}
         kept["search_space"] = {k: v for k, v in registry["search_space"].items() if k in space}
         kept["axes"] = [axis for axis in registry["axes"] if axis in axes]
+        if isinstance(seen.get("protocols"), dict) and isinstance(registry.get("protocols"), dict):
+            kept["protocols"] = {k: v for k, v in registry["protocols"].items() if k in seen["protocols"]}
         baseline = registry["baseline"]
         kept["baseline"] = {**baseline, "config": {k: v for k, v in baseline["config"].items() if k in space}}
         kept["baseline"].pop("metric", None)

@@ -53,11 +53,13 @@ def run_campaign(
     iterations: int,
     timeout: float = 60.0,
     time_budget: float | None = None,
+    protocol: str | None = None,
 ) -> Path:
     """A campaign directory as ``autoresearch loop`` writes it (campaign.json included)."""
     root.mkdir(parents=True)
     settings = {"timeout_per_run": timeout, "seed": 0, "max_iters": iterations, "time_budget": time_budget}
-    CampaignMeta.new(family, proposer.name, settings).write(root)
+    family = family.under_protocol(protocol)
+    CampaignMeta.new(family, proposer.name, {**settings, "protocol": protocol}).write(root)
     budgets = Budgets(max_iters=iterations, plateau_window=10**6)
     loop = LoopSettings(proposer.name, budgets, timeout_per_run=timeout, time_budget=time_budget)
     Orchestrator(family, proposer, root, loop).run()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import pytest
@@ -96,6 +97,34 @@ def test_a_promotion_keeps_the_training_budget_it_was_certified_under(tmp_path):
         "time_budget": 30.0,
     }
     assert Family.load(family.path).best["time_budget"] == 30.0  # a valid registry
+
+
+def test_a_best_certified_under_limits_is_replaced_only_under_limits_as_tight(tmp_path):
+    """A protocol's limits hold every split a reseed is scored on (the sealed split's loss is the
+    search loss + 1000 here), and promotion keeps the tightest gate met: a best certified under
+    limits replaces one certified without, and is not replaced by a campaign held to none."""
+    family = copy_family(AUDIT_FAMILY, tmp_path / "family")
+    registry = read_json(family.path / "family.json")
+    registry["test_split"] = True
+    registry["protocols"] = {"capped": {"limits": {"loss": 5000.0}}, "tight": {"limits": {"loss": 100.0}}}
+    (family.path / "family.json").write_text(json.dumps(registry))
+    family = Family.load(family.path)
+    measure_noise(family, SERIAL, k=4)
+
+    def certify(name, protocol=None):
+        root = run_campaign(family, tmp_path / name, ScriptedProposer([P1]), iterations=2, protocol=protocol)
+        return verify(open_campaign(root), LocalExecutor(2), top=1, n_seeds=4)
+
+    assert certify("plain")["family_best"]["updated"]
+    tight = certify("tight", "tight")  # feasible on the search split, over the limit on the sealed one
+    (candidate,) = tight["candidates"]
+    assert candidate["n_feasible"] == 0 and not candidate["passed"] and tight.get("promoted") is None
+    capped = certify("capped", "capped")
+    assert capped["family_best"]["updated"] and "tighter limits" in capped["family_best"]["why"]
+    assert read_json(family.path / "family.json")["best"]["limits"] == {"loss": 5000.0}
+    assert family_best(family.path)["limits"] == {"loss": 5000.0}
+    again = certify("plain-again")  # as reproducible, held to no limit
+    assert not again["family_best"]["updated"] and "limits" in again["family_best"]["why"]
 
 
 def test_prune_decides_every_case_of_eq_loodecision(scenario_a):

@@ -196,6 +196,26 @@ def test_a_protocol_campaign_opens_after_a_choice_it_never_saw_was_added(tmp_pat
                 meta.open_family(tmp_path / "c")
 
 
+def test_a_protocol_declared_since_keeps_a_campaign_but_a_changed_one_does_not(tmp_path, monkeypatch):
+    """A campaign shown the family's protocols still opens once another protocol is declared (no
+    earlier campaign searched it); one whose own protocol changed since does not."""
+    monkeypatch.chdir(tmp_path)
+    toy = copy_toy(tmp_path)
+    registry = json.loads((toy / "family.json").read_text())
+    registry["protocols"] = {"short": {"bounds": {"EPOCHS": {"high": 20}}}}
+    (toy / "family.json").write_text(json.dumps(registry, indent=2))
+    loop = ["loop", "--family", str(toy), "--protocol", "short", "--proposer", "random", "--max-iters", "2"]
+    assert main([*loop, "--campaign", "c"]) == 0
+    meta = CampaignMeta.read(tmp_path / "c")
+    registry["protocols"]["capped"] = {"limits": {"loss": 1.0}}
+    (toy / "family.json").write_text(json.dumps(registry, indent=2))
+    assert meta.open_family(tmp_path / "c").limits == {}
+    registry["protocols"]["short"]["limits"] = {"loss": 1.0}
+    (toy / "family.json").write_text(json.dumps(registry, indent=2))
+    with pytest.raises(CampaignError, match="changed"):
+        meta.open_family(tmp_path / "c")
+
+
 def test_a_baseline_measured_again_is_the_same_family_but_a_changed_target_is_not(tmp_path, monkeypatch):
     """The baseline's metric is a measurement (the search split moving from 128 to 512 starts
     re-measured both shipped families'): re-measured, the family still opens its campaigns; with

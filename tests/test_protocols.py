@@ -70,6 +70,8 @@ def test_a_malformed_protocol_is_a_problem_of_the_family(tmp_path):
     cases = {
         "unknown axis": {"p": {"exclude_axes": ["no-such-axis"]}},
         "unknown key": {"p": {"keep": []}},
+        "limit not a number": {"p": {"limits": {"loss": "low"}}},
+        "limits not an object": {"p": {"limits": [1.0]}},
         "baseline outside": {
             "p": {
                 "bounds": {
@@ -83,6 +85,46 @@ def test_a_malformed_protocol_is_a_problem_of_the_family(tmp_path):
     for why, protocols in cases.items():
         problems = family_problems(bad_copy(tmp_path / why.replace(" ", "-"), protocols))
         assert any("protocols.p" in problem for problem in problems), (why, problems)
+
+
+def test_limits_belong_in_a_protocol(tmp_path):
+    family = bad_copy(tmp_path, {})
+    registry = json.loads((family / "family.json").read_text())
+    (family / "family.json").write_text(json.dumps({**registry, "limits": {"loss": 1.0}}))
+    assert any("'limits' belongs in a protocol" in problem for problem in family_problems(family))
+
+
+@pytest.mark.parametrize(("name", "limit"), [("docking", 1.5), ("docking-constrained", 2.0)])
+def test_the_fuel_protocol_holds_a_feasible_run_to_its_energy_limit(name, limit):
+    """Under ``fuel`` a run counts as feasible only when its strict gate is met and it spends at most
+    ``limit`` x the expert's energy; the limit is one more graded constraint, and a run that does not
+    report the field fails it. The space is the family's whole space."""
+    family = Family.load(ROOT / "families" / name)
+    fuel = family.under_protocol("fuel")
+    assert fuel.limits == {"effort_ratio": limit} and family.limits == {}
+    assert fuel.registry["search_space"] == family.registry["search_space"]
+    assert fuel.search_registry()["limits"] == {"effort_ratio": limit}
+    graded = {"success_shortfall": -0.2, "violation_rate": 0.0, "clearance_deficit": -0.5}
+    run = {"strict_feasible": True, "constraints": graded, "effort_ratio": limit + 0.25}
+    assert family.is_feasible(run) and not fuel.is_feasible(run)
+    assert fuel.constraints(run) == {**graded, "effort_ratio_over_limit": pytest.approx(0.25)}
+    assert fuel.is_feasible({**run, "effort_ratio": limit})
+    assert not fuel.is_feasible({**run, "strict_feasible": False, "effort_ratio": 1.0})
+    assert (
+        not fuel.is_feasible({"strict_feasible": True})
+        and fuel.constraints({"strict_feasible": True}) is None
+    )
+
+
+def test_limits_without_a_constraints_field_grade_the_gate_as_zero_or_one(tmp_path):
+    path = bad_copy(tmp_path, {"p": {"limits": {"loss": 2.0}}})
+    registry = json.loads((path / "family.json").read_text())
+    del registry["constraints_field"]
+    (path / "family.json").write_text(json.dumps(registry))
+    family = Family.load(path).under_protocol("p")
+    field = family.feasibility_field
+    assert family.constraints({field: True, "loss": 1.5}) == {field: 0.0, "loss_over_limit": -0.5}
+    assert family.constraints({field: False, "loss": 2.5}) == {field: 1.0, "loss_over_limit": 0.5}
 
 
 def test_loop_refuses_an_undeclared_protocol_in_one_line(tmp_path):

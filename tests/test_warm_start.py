@@ -66,6 +66,26 @@ def test_runs_are_matched_against_the_space_searched_now(toy, earlier):
     assert warm.sources[0]["dropped"]["a value outside the space searched now"] == 2
 
 
+def test_runs_are_judged_under_the_gate_searched_now(toy, earlier):
+    """A protocol's limits re-judge the earlier runs: one that ran feasible but reports a limited field
+    over its limit is told to the samplers as infeasible, with the excess among its constraints."""
+    registry = json.loads((toy / "family.json").read_text())
+    registry["protocols"]["capped"] = {"limits": {"loss": 0.5}}
+    (toy / "family.json").write_text(json.dumps(registry))
+    capped = Family.load(toy).under_protocol("capped")
+    before = {
+        run.iteration: run.outcome
+        for run in WarmStart.load([str(earlier)], Family.load(toy), capped.space).runs
+    }
+    after = {run.iteration: run.outcome for run in WarmStart.load([str(earlier)], capped, capped.space).runs}
+    assert before.keys() == after.keys()
+    for iteration, outcome in after.items():
+        over = outcome.metric > 0.5
+        assert outcome.feasible == (before[iteration].feasible and not over)
+        assert (outcome.constraints["loss_over_limit"] > 0) == over
+    assert any(b.feasible and not after[i].feasible for i, b in before.items())  # one re-judged, at least
+
+
 def test_tpe_starts_from_the_earlier_runs(toy, earlier, tmp_path, capsys):
     campaign = tmp_path / "c"
     args = ["loop", "--family", toy, "--proposer", "tpe", "--max-iters", "2", "--plain"]

@@ -233,10 +233,15 @@ def verdict_note(arms: list[PlottedArm], noise: dict[str, Any] | None) -> str | 
 
 
 def _feasibility(family: Family) -> str:
-    field = family.feasibility_field
-    if field is None:
+    field, limits = family.feasibility_field, family.limits
+    within = " and ".join(f"`{name}` <= {limit:g}" for name, limit in limits.items())
+    if field is None and not limits:
         return "every run counts as feasible (the family declares no feasibility field)"
-    return f"a run counts as feasible only when its `{field}` is true"
+    if field is None:
+        return f"a run counts as feasible only when it reports {within} (the protocol's limits)"
+    return f"a run counts as feasible only when its `{field}` is true" + (
+        f" and it reports {within} (the protocol's limits)" if limits else ""
+    )
 
 
 def split_note(audit: dict[str, Any]) -> str:

@@ -184,11 +184,17 @@ def is_this_campaign(source: Any, campaign: AuditedCampaign) -> bool:
     return os.path.normpath(recorded) == os.path.normpath(campaign.root.resolve())
 
 
+def _at_least_as_tight(limits: dict[str, float], than: dict[str, float]) -> bool:
+    """Whether ``limits`` bound every field ``than`` bounds, each at most as high."""
+    return all(name in limits and limits[name] <= bound for name, bound in than.items())
+
+
 def _replaces_family_best(
     current: dict[str, Any] | None, family: Family, candidate: dict[str, Any], campaign: AuditedCampaign
 ) -> tuple[bool, str]:
     """A promotion replaces the family's best unless another campaign's best is more reproducible on
-    the same split, or is certified on the sealed split while this candidate is not."""
+    the same split, is certified on the sealed split while this candidate is not, or met limits
+    (a protocol's) this candidate was not held to; one certified under tighter limits replaces it."""
     if not current:
         return True, "the family had no best"
     source = current.get("source") or {}
@@ -201,6 +207,17 @@ def _replaces_family_best(
         if split == Split.TEST.value:
             return True, "the family's previous best was certified on the search split only"
         return False, f"the family's best (from {source}) is certified on the sealed test split"
+    held, holds = current.get("limits") or {}, family.limits
+    if held != holds:  # the best must meet every limit it met before: the gate may only tighten
+        if _at_least_as_tight(holds, held):
+            return (
+                True,
+                f"certified under tighter limits ({holds}) than the family's previous best ({held or 'none'})",
+            )
+        return (
+            False,
+            f"the family's best (from {source}) is certified under limits {held} this candidate was not held to",
+        )
     sign = family.direction
     old = stats.reproducibility_bound(current["metric"], current["std"], current["n"], sign)
     if candidate["bound"] >= old:
@@ -231,6 +248,7 @@ def promote(
         "source": {"campaign": campaign_ref(campaign), "run_id": candidate["source"]["run_id"], "step": step},
         # the recipe is defined with the budget its reseeds trained under (EPOCHS may not fit in it)
         **({"time_budget": campaign.time_budget} if campaign.time_budget is not None else {}),
+        **({"limits": family.limits} if family.limits else {}),  # the gate it passed
         **extra,
     }
 

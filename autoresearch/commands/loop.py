@@ -144,8 +144,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--protocol",
         metavar="NAME",
         help="search one of the protocols the family declares (family.json 'protocols'), e.g. 'paper': "
-        "its excluded axes held at the baseline, its bounds in place of the declared ones; kept in "
-        "campaign.json",
+        "its excluded axes held at the baseline, its bounds in place of the declared ones, its limits "
+        "(e.g. docking's 'fuel') part of what counts as feasible; kept in campaign.json",
     )
     p.add_argument(
         "--campaign", help="campaign directory (default runs/<family>-<proposer>-<YYYYmmdd-HHMMSS>)"

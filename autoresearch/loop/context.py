@@ -20,6 +20,7 @@ BLIND_REGISTRY_KEYS = (
     "metric",
     "direction",
     "feasibility_field",
+    "limits",
     "default_seed",
     "axes",
     "search_space",

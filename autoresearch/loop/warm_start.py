@@ -71,7 +71,8 @@ class WarmStart:
                 outcome = RunOutcome(
                     config,
                     record.metric,
-                    bool(record.feasible),
+                    # judged under this campaign's gate (its protocol's limits), not the one it ran under
+                    family.is_feasible(record.final_metric) if record.final_metric else bool(record.feasible),
                     family.constraints(record.final_metric),
                     seconds=record.wall_seconds,
                     budget_exhausted=bool(record.budget_exhausted),
