@@ -11,6 +11,8 @@
 # from the paper-space campaigns, whose runs all fly the baseline of the new axis, the docking GP
 # never tried it (results/README.md). AUDIT=verify reseeds the best only (no pruning, no random arm).
 # SUFFIX names a further campaign of the same kind (the space grew: rendezvous' costate form).
+# WARM_FROM="DIR..." warm-starts from those campaigns instead; PROTOCOL=NAME searches under one of the
+# family's protocols (docking's `fuel`: feasible only at most 1.5x the expert's energy).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 export OMP_NUM_THREADS=1 MPLBACKEND=Agg PATH="$PWD/.venv/bin:$PATH"
@@ -27,6 +29,8 @@ SEEDS=${SEEDS:-5}
 dir=results/agent-levers/$family-gp
 warm_start=(--warm-start "${warm[@]}")
 if [ "${WARM:-1}" = 0 ]; then dir=$dir-cold; warm_start=(); fi
+if [ -n "${WARM_FROM:-}" ]; then read -ra warm <<< "$WARM_FROM"; warm_start=(--warm-start "${warm[@]}"); fi
+protocol=(${PROTOCOL:+--protocol "$PROTOCOL"})
 dir=$dir${SUFFIX:+-$SUFFIX}  # e.g. SUFFIX=costate: a new campaign once the space has grown
 python "families/$family/prepare.py" --warm-cache  # every pool the space can ask for (a no-op when cached)
 start=$SECONDS
@@ -36,7 +40,7 @@ else
   # The plateau rule off: the campaign spends its run budget (the target is a report line by default).
   autoresearch loop --family "$family" --proposer gp --seed 0 --workers 2 --max-runs "$RUNS" \
     --max-iters 1000 --plateau-window 1000 --max-failures 20 --time-budget "$BUDGET" --eval-allowance 300 \
-    "${warm_start[@]}" --campaign "$dir" --plain
+    "${warm_start[@]}" "${protocol[@]}" --campaign "$dir" --plain
 fi
 echo "[agent-levers] $family: campaign done at $((SECONDS - start)) s"
 if [ "${AUDIT:-audit}" = verify ]; then
