@@ -12,6 +12,7 @@ from autoresearch.audit.inputs import AuditError, config_id, open_campaign
 from autoresearch.audit.noise import measure_noise
 from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
+from autoresearch.audit.report import write_report
 from autoresearch.audit.verify import verify
 from autoresearch.campaign.audit_log import read_audit
 from autoresearch.execution.executors import LocalExecutor
@@ -123,6 +124,8 @@ def test_a_best_certified_under_limits_is_replaced_only_under_limits_as_tight(tm
     assert capped["family_best"]["updated"] and "tighter limits" in capped["family_best"]["why"]
     assert read_json(family.path / "family.json")["best"]["limits"] == {"loss": 5000.0}
     assert family_best(family.path)["limits"] == {"loss": 5000.0}
+    text = write_report(tmp_path / "capped").read_text()
+    assert "is true and it reports `loss` <= 5000 (the protocol's limits)" in text
     again = certify("plain-again")  # as reproducible, held to no limit
     assert not again["family_best"]["updated"] and "limits" in again["family_best"]["why"]
 
