@@ -193,8 +193,9 @@ def _replaces_family_best(
     current: dict[str, Any] | None, family: Family, candidate: dict[str, Any], campaign: AuditedCampaign
 ) -> tuple[bool, str]:
     """A promotion replaces the family's best unless another campaign's best is more reproducible on
-    the same split, is certified on the sealed split while this candidate is not, or met limits
-    (a protocol's) this candidate was not held to; one certified under tighter limits replaces it."""
+    the same split under the same limits, is certified on the sealed split while this candidate is
+    not, or met limits (a protocol's) this candidate was not held to; one certified on the sealed
+    split or under tighter limits, and weaker in neither, replaces it."""
     if not current:
         return True, "the family had no best"
     source = current.get("source") or {}
@@ -202,21 +203,23 @@ def _replaces_family_best(
         return True, "replaces this campaign's earlier promotion"
     if current.get("std") is None or (current.get("n") or 0) < 2:
         return True, "the family's previous best was not reseeded"
+    # Neither the split nor the gate may loosen: a candidate weaker on either keeps the best, one
+    # stronger on either (and weaker on neither) replaces it, and only equals compare their bounds.
     current_split, split = current.get("split", Split.SEARCH.value), candidate["split"]
-    if current_split != split:
-        if split == Split.TEST.value:
-            return True, "the family's previous best was certified on the search split only"
-        return False, f"the family's best (from {source}) is certified on the sealed test split"
     held, holds = current.get("limits") or {}, family.limits
-    if held != holds:  # the best must meet every limit it met before: the gate may only tighten
-        if _at_least_as_tight(holds, held):
-            return (
-                True,
-                f"certified under tighter limits ({holds}) than the family's previous best ({held or 'none'})",
-            )
+    if current_split == Split.TEST.value and split != current_split:
+        return False, f"the family's best (from {source}) is certified on the sealed test split"
+    if not _at_least_as_tight(holds, held):
         return (
             False,
             f"the family's best (from {source}) is certified under limits {held} this candidate was not held to",
+        )
+    if split != current_split:
+        return True, "the family's previous best was certified on the search split only"
+    if held != holds:
+        return (
+            True,
+            f"certified under tighter limits ({holds}) than the family's previous best ({held or 'none'})",
         )
     sign = family.direction
     old = stats.reproducibility_bound(current["metric"], current["std"], current["n"], sign)
