@@ -411,7 +411,7 @@ def test_family_json_matches_the_contract_and_train_py(name):
     # family.json is the registry: the declaration and the current best (with the training budget it
     # was certified under, if any), no measurement of the audit's
     assert "seed_noise" not in registry
-    assert set(registry.get("best") or {}) <= {"config", "metric", "time_budget"}
+    assert set(registry.get("best") or {}) <= {"config", "metric", "time_budget", "limits"}
     assert (
         isinstance(registry["baseline"]["metric"], float)
         and registry["baseline"]["seed"] == family.default_seed

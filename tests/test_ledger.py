@@ -112,7 +112,7 @@ def test_the_committed_families_keep_the_registry_and_the_ledger_apart():
         registry = json.loads((family_dir / "family.json").read_text())
         book = json.loads((family_dir / LEDGER_FILE).read_text())
         assert "seed_noise" not in registry
-        assert set(registry.get("best") or {}) <= {"config", "metric", "time_budget"}
+        assert set(registry.get("best") or {}) <= {"config", "metric", "time_budget", "limits"}
         assert book["seed_noise"]["k"] == 10 and "test" in book["seed_noise"]
         if registry.get("best"):
             promoted, best = book["promotions"][-1], registry["best"]
