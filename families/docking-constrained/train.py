@@ -27,7 +27,8 @@ the score.
 Levers beyond the paper's behaviour cloning (the ``algorithm`` axis; their defaults are plain
 BC): POLICY_FORM = "residual" makes the network a bounded correction added to the closed-form
 shrinking-horizon minimum-energy law toward the observed goal, whose gain table is part of the
-policy (cwh_envs.controllers.MinEnergyFeedback); DAGGER_ITERS > 0 runs DAgger rounds: fly the
+policy (cwh_envs.controllers.MinEnergyFeedback); "route", to the same law re-planned through a
+fixed route of waypoints around the keep-out and down the docking axis (WaypointFeedback); DAGGER_ITERS > 0 runs DAgger rounds: fly the
 policy as deployed from training starts, relabel every visited state with the expert over the
 remaining horizon (receding-horizon MPC, cwh_envs.mpc, whose soft re-plan labels the states the
 hard expert cannot answer from; DAGGER_STATES of them, drawn at random, if > 0), add them to the
@@ -59,7 +60,8 @@ import torch
 from filelock import FileLock
 from torch import nn
 
-from cwh_envs.controllers import min_energy_gains
+from cwh_envs.constraints import APEX
+from cwh_envs.controllers import AXIS_TOLERANCE, CONE_ROUTE, WaypointFeedback, min_energy_gains
 from cwh_envs.datasets import Demonstrations, demonstrations, evaluation_set, recovery_demonstrations
 from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.observations import docking_observation
@@ -80,8 +82,8 @@ ACTIVATION = "tanh"  # hidden nonlinearity: "tanh", "relu" or "gelu"
 DROPOUT = 0.0  # dropout probability after each hidden layer (training only)
 RUNTIME_CBF_FILTER = True  # fly through the multi-constraint predictive CBF safety filter
 RECOVERY_AUGMENT_FRAC = 0.0  # recovery trajectories added, as a fraction of N_DEMOS
-POLICY_FORM = "direct"  # "direct": the network is the policy; "residual": a correction to the closed-form law
-RESIDUAL_SCALE = 1.0  # residual form: the correction's bound per axis, a fraction of u_max (tanh-squashed)
+POLICY_FORM = "direct"  # "direct": the network; "residual" / "route": a correction to a closed-form law
+RESIDUAL_SCALE = 1.0  # residual forms: the correction's bound per axis, a fraction of u_max (tanh-squashed)
 BOX_AWARE_LOSS = False  # True: where the expert rides the thrust box, any output beyond it counts as exact
 EXPERT_MARGIN = 0.5  # m: the keep-out standoff the demonstrations keep (the filter and the score keep 0.5)
 DAGGER_ITERS = 0  # DAgger rounds after the first training (0: plain behaviour cloning)
@@ -144,7 +146,7 @@ CONFIG_NAMES = (
     "FINETUNE_ENERGY",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
-POLICY_FORMS = ("direct", "residual")
+POLICY_FORMS = ("direct", "residual", "route")
 EXPERT_MARGINS = (0.5, 0.75)  # one training pool (and recovery pool) each: prepare.py builds them all
 MAX_DAGGER_ITERS = 8
 MAX_DAGGER_STATES = 4096
@@ -155,19 +157,32 @@ FINETUNE_STARTS = 128  # training-pool starts flown per fine-tuning step (a fres
 class Policy(nn.Module):
     """MLP on standardised observations; outputs thrust / u_max. ``act`` returns the env action (thrust / u_max, clipped).
 
-    The residual form outputs ``law(obs) + RESIDUAL_SCALE tanh(net(obs))``, the law being the
-    closed-form minimum-energy feedback to the observed goal from its gain table (buffers: float64,
-    and exported with the policy); with a zero correction it flies the law exactly. The law ignores
-    every constraint: the correction learns the detour, the filter (if on) guards the rest.
+    The residual forms output ``law(obs) + RESIDUAL_SCALE tanh(net(obs))``, the law's gain table
+    being buffers (float64, exported with the policy); with a zero correction the policy flies the
+    law exactly. "residual": the closed-form minimum-energy feedback to the observed goal, which
+    ignores every constraint (the correction learns the detour, the filter guards the rest).
+    "route": the same law re-planned through cwh_envs.controllers.CONE_ROUTE's waypoints (around
+    the keep-out, onto the docking axis outside the cone's 15 m, down the axis), WaypointFeedback;
+    its correction is off once the route's last waypoint is passed (the final 20 steps).
     """
 
     def __init__(self, config: dict, obs_mean: torch.Tensor, obs_std: torch.Tensor, u_max: float):
         super().__init__()
-        self.residual = config.get("POLICY_FORM", "direct") == "residual"
-        if self.residual:
+        self.form = config.get("POLICY_FORM", "direct")
+        self.residual = self.form != "direct"
+        if self.form == "residual":
             gains = min_energy_gains(PROBLEM)
             self.register_buffer("target_gain", torch.tensor(gains.target_gain[:, :, :3]))  # (H+1, 3, 3)
             self.register_buffer("state_gain", torch.tensor(gains.state_gain))  # (H+1, 3, 6): L_m
+        elif self.form == "route":
+            gains = WaypointFeedback(PROBLEM, CONE_ROUTE).gains
+            self.register_buffer("target_gain", torch.tensor(gains.target_gain))  # (H+1, 3, 3W+6)
+            self.register_buffer("state_gain", torch.tensor(gains.state_gain))  # (H+1, 3, 6)
+            angle = np.radians([w.angle_deg for w in CONE_ROUTE])
+            distance = np.array([w.distance for w in CONE_ROUTE])
+            self.register_buffer("route_along", torch.tensor(distance * np.cos(angle))[:, None])  # (W, 1)
+            self.register_buffer("route_across", torch.tensor(distance * np.sin(angle))[:, None])
+        if self.residual:
             self.scale = float(config["RESIDUAL_SCALE"])
         layers, width = [], OBS_DIM
         for _ in range(config["N_LAYERS"]):
@@ -183,7 +198,7 @@ class Policy(nn.Module):
         self.u_max = u_max
 
     def forward(self, standardised_obs: torch.Tensor, obs: torch.Tensor | None = None) -> torch.Tensor:
-        """Unclipped thrust / u_max; the residual form's (float64) law reads ``obs`` (float64, as
+        """Unclipped thrust / u_max; the residual forms' (float64) law reads ``obs`` (float64, as
         shown by the env), else the observations recovered from the standardised ones (the ONNX
         graph's path)."""
         out = self.net(standardised_obs)
@@ -191,14 +206,44 @@ class Policy(nn.Module):
             return out
         if obs is None:
             obs = standardised_obs.double() * self.obs_std.double() + self.obs_mean.double()
-        return self.law(obs) + self.scale * torch.tanh(out.double())  # float64: the law flies exactly
+        correction = self.scale * torch.tanh(out.double())  # float64: the law flies exactly
+        if self.form == "route":
+            # Past the route's last waypoint the law alone flies the final approach: it ends at the
+            # port to 1e-7 m, where a correction's millimetres put the chaser outside the cone's apex.
+            steps = torch.round(obs[:, -1:] * PROBLEM.horizon)
+            correction = correction * (steps > PROBLEM.horizon - CONE_ROUTE[-1].step).double()
+        return self.law(obs) + correction
 
     def law(self, obs: torch.Tensor) -> torch.Tensor:
-        """The closed-form law's thrust / u_max (unclipped), ``K_m g - L_m x`` with m = round(tau H)
-        steps to go and g the observed goal."""
+        """The law's thrust / u_max (unclipped), ``K_m t - L_m x`` with m = round(tau H) steps to go
+        and t the goal ("residual") or the waypoints' positions and the goal state ("route")."""
         steps = torch.round(obs[:, -1] * PROBLEM.horizon).long().clamp(1, PROBLEM.horizon)
-        toward = self.target_gain[steps] @ obs[:, 6:9, None] - self.state_gain[steps] @ obs[:, :6, None]
+        goal = obs[:, 6:9]
+        targets = goal if self.form == "residual" else torch.cat([self.waypoints(obs), goal, 0 * goal], dim=1)
+        toward = self.target_gain[steps] @ targets[:, :, None] - self.state_gain[steps] @ obs[:, :6, None]
         return toward.squeeze(-1) / self.u_max
+
+    def waypoints(self, obs: torch.Tensor) -> torch.Tensor:
+        """CONE_ROUTE's positions (N, 3W), as WaypointFeedback.waypoint_positions places them."""
+        goal = obs[:, 6:9]
+        axis = goal / torch.linalg.vector_norm(goal, dim=1, keepdim=True)
+        offset = obs[:, :3] - goal
+        side = offset - (offset * axis).sum(dim=1, keepdim=True) * axis
+        norm = torch.linalg.vector_norm(side, dim=1, keepdim=True)
+        unit = torch.eye(3, dtype=obs.dtype, device=obs.device)[torch.argmin(axis.abs(), dim=1)]
+        fallback = torch.stack(  # axis x e_i, written out: ONNX has no cross product
+            [
+                axis[:, 1] * unit[:, 2] - axis[:, 2] * unit[:, 1],
+                axis[:, 2] * unit[:, 0] - axis[:, 0] * unit[:, 2],
+                axis[:, 0] * unit[:, 1] - axis[:, 1] * unit[:, 0],
+            ],
+            dim=1,
+        )
+        fallback = fallback / torch.linalg.vector_norm(fallback, dim=1, keepdim=True)
+        on_axis = norm <= AXIS_TOLERANCE
+        side = torch.where(on_axis, fallback, side / torch.where(on_axis, torch.ones_like(norm), norm))
+        points = goal[:, None] + self.route_along * axis[:, None] + self.route_across * side[:, None]
+        return points.flatten(1)
 
     @torch.no_grad()
     def act(self, obs: np.ndarray) -> np.ndarray:
@@ -595,7 +640,7 @@ class ClosedLoop:
     - keep-out: ``relu(koz_radius + margin - |r|)`` (below the filter's standoff);
     - speed: ``relu(|v| - v0 - v1 |r - g|) dt``, the distance flown over the limit in the step;
     - cone: within its radius of the port, ``relu(cos(theta) |r - g| - a^T (r - g))``, how far
-      outside the cone (the constraint's own slack, cwh_envs.constraints);
+      outside the cone (the constraint's own slack, cwh_envs.constraints; 0 within APEX of the port);
 
     plus ``energy_weight`` x the batch's energy over the expert's from the same starts.
     Differentiable end to end (the clip passes no gradient where it binds, the cone's region is a
@@ -635,7 +680,11 @@ class ClosedLoop:
             excursion = {
                 "keep_out": excursion["keep_out"] + torch.relu(self.standoff - radius),
                 "speed": excursion["speed"] + torch.relu(speed - self.v0 - self.v1 * distance) * PROBLEM.dt,
-                "cone": excursion["cone"] + torch.where(distance <= self.cone_radius, outside, 0.0),
+                # within APEX of the port the env counts the chaser at the cone's apex, inside it
+                "cone": excursion["cone"]
+                + torch.where(
+                    (distance <= self.cone_radius) & (offset.square().sum(dim=1) > APEX**2), outside, 0.0
+                ),
             }
             energy = energy + (PROBLEM.u_max * action).square().sum(dim=1) * PROBLEM.dt
         return norm(states[:, :3] - goals), excursion, energy
