@@ -11,23 +11,15 @@ pd_law.json beside this file and prints a Markdown table.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
+from scored import load_train, scored
+
 from cwh_envs.controllers import pd_action
 from cwh_envs.datasets import evaluation_set
-from cwh_envs.rollout import fly
 
 HERE = Path(__file__).resolve().parent
-FAMILY = HERE.parents[1] / "families" / "docking-constrained"
-
-
-def load_train():
-    spec = importlib.util.spec_from_file_location("constrained_train", FAMILY / "train.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def main() -> None:
@@ -38,23 +30,8 @@ def main() -> None:
     out = {}
     for split, n in (("search", train.N_EVAL), ("test", train.N_TEST)):
         held_out = evaluation_set(train.TASK, n, problem=problem, split=split)
-        expert = held_out.trajectory_thrust()
         for name, cbf in (("no filter", False), ("multi-constraint filter", True)):
-            margin = problem.margin if cbf else None
-            flight = fly(problem, law, held_out.starts, held_out.goals, cbf_margin=margin)
-            metrics = train.docking_metrics(flight, expert)
-            if cbf:
-                dispersed = fly(
-                    problem,
-                    law,
-                    held_out.starts,
-                    held_out.goals,
-                    cbf_margin=margin,
-                    dispersions=train.DISPERSIONS,
-                    dispersion_seed=train.DISPERSION_SEED,
-                )
-                metrics["dispersed"] = train.dispersed_metrics(dispersed)
-            out[f"{split}/{name}"] = metrics
+            out[f"{split}/{name}"] = scored(train, law, held_out, cbf)
     (HERE / "pd_law.json").write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
     print(
         "| PD law | split | score | success | keep-out / speed / cone violation rate | effort ratio | strict-feasible |"

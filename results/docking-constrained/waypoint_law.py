@@ -16,28 +16,19 @@ then the law's cost per step (one observation, the median of 2000 calls).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import time
 from pathlib import Path
 
 import numpy as np
+from scored import load_train, scored
 
 from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback
 from cwh_envs.datasets import CacheMiss, demonstrations, evaluation_set
-from cwh_envs.rollout import fly
 
 HERE = Path(__file__).resolve().parent
-FAMILY = HERE.parents[1] / "families" / "docking-constrained"
 POOL_MARGIN = 0.75  # m: the cached training pool's standoff (its expert spends a little more than 0.5 m's)
 TEST_STARTS = 256  # the leaderboard's share of the constrained test split (its expert: 1-4 s a start)
-
-
-def load_train():
-    spec = importlib.util.spec_from_file_location("constrained_train", FAMILY / "train.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def start_sets(train) -> dict:
@@ -69,25 +60,10 @@ def main() -> None:
     laws = {"waypoint law": WaypointFeedback(problem), "closed-form law": MinEnergyFeedback(problem)}
     out = {}
     for split, held_out in start_sets(train).items():
-        expert = held_out.trajectory_thrust()
         for law_name, law in laws.items():
             for cbf in (False, True):
-                margin = problem.margin if cbf else None
-                flight = fly(problem, law, held_out.starts, held_out.goals, cbf_margin=margin)
-                metrics = train.docking_metrics(flight, expert)
-                if cbf:
-                    dispersed = fly(
-                        problem,
-                        law,
-                        held_out.starts,
-                        held_out.goals,
-                        cbf_margin=margin,
-                        dispersions=train.DISPERSIONS,
-                        dispersion_seed=train.DISPERSION_SEED,
-                    )
-                    metrics["dispersed"] = train.dispersed_metrics(dispersed)
                 name = f"{law_name} + multi-constraint filter" if cbf else f"{law_name}, no filter"
-                out[f"{split} ({len(held_out.starts)})/{name}"] = metrics
+                out[f"{split} ({len(held_out.starts)})/{name}"] = scored(train, law, held_out, cbf)
     one = evaluation_set(train.TASK, train.N_EVAL, problem=problem, split="search").observations[:1]
     timing = {name: per_step_seconds(law, one) for name, law in laws.items()}
     (HERE / "waypoint_law.json").write_text(
