@@ -73,13 +73,19 @@ def min_energy_gains(problem) -> MinEnergyGains:
     return _min_energy_gains(problem.n, problem.dt, problem.mass, problem.discretization, problem.horizon)
 
 
-@lru_cache(maxsize=8)
-def _min_energy_gains(n: float, dt: float, mass: float, discretization: str, horizon: int) -> MinEnergyGains:
+def _powers_and_impulses(n: float, dt: float, mass: float, discretization: str, horizon: int):
+    """``[A^0, ..., A^H]`` and ``[A^0 B, ..., A^{H-1} B]``: both laws' condensed model (the experts'
+    LinearModel holds the same; importing it would load the solvers into every controller)."""
     a, b = cwh_matrices(n, dt, mass, discretization)
     powers = [np.eye(6)]
     for _ in range(horizon):
         powers.append(a @ powers[-1])
-    impulse = [power @ b for power in powers[:-1]]  # A^j B
+    return powers, [power @ b for power in powers[:-1]]
+
+
+@lru_cache(maxsize=8)
+def _min_energy_gains(n: float, dt: float, mass: float, discretization: str, horizon: int) -> MinEnergyGains:
+    powers, impulse = _powers_and_impulses(n, dt, mass, discretization, horizon)
     target_gain = np.zeros((horizon + 1, 3, 6))
     state_gain = np.zeros((horizon + 1, 3, 6))
     for m in range(1, horizon + 1):
@@ -264,11 +270,7 @@ def _waypoint_gains(
     """Per steps to go m (step k = H - m): the constraints stack each remaining waypoint's position
     rows and the final state's six over the controls u_k..u_{H-1}; the first three rows of their
     pseudo-inverse (SVD, least norm) give the first control's gains."""
-    a, b = cwh_matrices(n, dt, mass, discretization)
-    powers = [np.eye(6)]
-    for _ in range(horizon):
-        powers.append(a @ powers[-1])
-    impulse = [power @ b for power in powers[:-1]]  # A^j B
+    powers, impulse = _powers_and_impulses(n, dt, mass, discretization, horizon)
     target_gain = np.zeros((horizon + 1, 3, 3 * len(steps) + 6))
     state_gain = np.zeros((horizon + 1, 3, 6))
     for m in range(1, horizon + 1):
