@@ -21,7 +21,7 @@ from test_families import family_copy, final_metric, run
 from cwh_envs import experts
 from cwh_envs.constraints import cone_terms, speed_margin
 from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback, pd_action
-from cwh_envs.datasets import evaluation_starts
+from cwh_envs.datasets import demonstrations, evaluation_starts
 from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.observations import rendezvous_observation
 from cwh_envs.prepare import DataNeeds, load_train, required_sets
@@ -186,6 +186,44 @@ def test_a_route_policy_with_a_zero_correction_flies_the_waypoint_law(trains):
         alone = np.clip(law.thrust(observed) / train.PROBLEM.u_max, -1, 1)
         moved = np.abs(policy.act(observed) - alone).max()
         assert (moved > 0.05) if corrected else (moved <= 1e-12), (steps_to_go, moved)
+
+
+@pytest.mark.parametrize("route_lr", [0.0, 0.5])
+def test_only_fine_tuning_with_a_route_rate_moves_the_route(trains, route_lr):
+    """Constrained docking's ROUTE_LR: cloning never moves the route form's waypoints; fine-tuning
+    moves them (downhill on its loss) only when ROUTE_LR > 0, records where they went, and leaves
+    them frozen; at 0 they stay as drawn, bit for bit."""
+    train = trains["docking-constrained"]
+    drawn = train.build_policy({**defaults(train), "POLICY_FORM": "route"})
+    drawn = torch.cat([drawn.route_along, drawn.route_across]).detach()
+    config = {**defaults(train), "POLICY_FORM": "route", "RESIDUAL_SCALE": 0.01, "HIDDEN_DIM": 8}
+    config |= {"N_LAYERS": 1, "EPOCHS": 2, "BATCH_SIZE": 16}
+    rng = np.random.default_rng(0)
+    obs, actions = rng.normal(size=(40, train.OBS_DIM)), rng.uniform(-1, 1, size=(40, 3))
+    cpu, generator = torch.device("cpu"), torch.Generator().manual_seed(0)
+    policy, _ = train.train(config, obs, actions, cpu, generator)
+    route = lambda: torch.cat([policy.route_along, policy.route_across]).detach().clone()  # noqa: E731
+    torch.testing.assert_close(route(), drawn, rtol=0, atol=0)  # cloning left it
+
+    pool = demonstrations("docking", 8, seed=0)  # any starts, goals and expert energies will do
+    starts, goals = (torch.as_tensor(a) for a in (pool.starts, pool.goals))
+    expert = torch.as_tensor(control_effort(pool.trajectory_thrust(), train.PROBLEM)[0])
+    loss_of = train.ClosedLoop(cpu, 0.1)
+    with torch.no_grad():
+        before = loss_of(policy, starts, goals, expert)
+    config |= {"FINETUNE_STEPS": 3, "FINETUNE_LR": 1e-6, "FINETUNE_ENERGY": 0.1, "ROUTE_LR": route_lr}
+    policy, counts = train.finetune(config, policy, cpu, generator, train.Budget(None), pool)
+    assert counts["steps"] == 3 and not policy.route_along.requires_grad
+    if not route_lr:
+        torch.testing.assert_close(route(), drawn, rtol=0, atol=0)
+        assert "route" not in counts
+        return
+    moved = (route() - drawn).abs()
+    assert moved.max() > 0.1 and moved.max() < 3 * route_lr  # Adam: about the rate a step, at most
+    recorded = torch.tensor(counts["route"]["along"] + counts["route"]["across"], dtype=torch.float64)
+    torch.testing.assert_close(recorded, route().flatten(), rtol=0, atol=5e-4)
+    with torch.no_grad():
+        assert loss_of(policy, starts, goals, expert) < before  # the network barely moved (lr 1e-6)
 
 
 def test_a_costate_policy_is_the_law_at_zero_and_the_expert_at_the_experts_multiplier(trains):

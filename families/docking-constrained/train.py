@@ -40,7 +40,8 @@ the difference never wakes the filter. FINETUNE_STEPS > 0 fine-tunes the policy 
 cloning: flown through the dynamics in torch without the filter (class ClosedLoop), it descends the
 mean terminal distance plus its excursions beyond every constraint (keep-out intrusion, speed excess,
 distance outside the cone) plus FINETUNE_ENERGY x its energy over the expert's: the routing the
-filter cannot decide one step at a time.
+filter cannot decide one step at a time. With ROUTE_LR > 0 the "route" form's waypoint positions
+(16 numbers) descend the same loss: the route itself is learnt.
 """
 
 from __future__ import annotations
@@ -94,6 +95,7 @@ FINETUNE_STEPS = 0  # closed-loop fine-tuning: gradient steps on the flown dista
 FINETUNE_LR = 0.0001  # its AdamW peak learning rate, annealed to 0 by a cosine schedule
 FINETUNE_SHARE = 0.5  # under a time budget: the share kept for fine-tuning (cloning and DAgger get the rest)
 FINETUNE_ENERGY = 0.0  # its loss's weight on the flight's energy over the expert's, from the same starts
+ROUTE_LR = 0.0  # "route" form: fine-tuning's peak step for the waypoints' positions, m (0: fixed)
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -144,6 +146,7 @@ CONFIG_NAMES = (
     "FINETUNE_LR",
     "FINETUNE_SHARE",
     "FINETUNE_ENERGY",
+    "ROUTE_LR",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual", "route")
@@ -180,8 +183,11 @@ class Policy(nn.Module):
             self.register_buffer("state_gain", torch.tensor(gains.state_gain))  # (H+1, 3, 6)
             angle = np.radians([w.angle_deg for w in CONE_ROUTE])
             distance = np.array([w.distance for w in CONE_ROUTE])
-            self.register_buffer("route_along", torch.tensor(distance * np.cos(angle))[:, None])  # (W, 1)
-            self.register_buffer("route_across", torch.tensor(distance * np.sin(angle))[:, None])
+            # The waypoints' positions in the plane of the axis and the start (W, 1) each: parameters
+            # that only closed-loop fine-tuning moves (ROUTE_LR > 0); cloning never does.
+            along, across = distance * np.cos(angle), distance * np.sin(angle)
+            self.route_along = nn.Parameter(torch.tensor(along)[:, None], requires_grad=False)
+            self.route_across = nn.Parameter(torch.tensor(across)[:, None], requires_grad=False)
         if self.residual:
             self.scale = float(config["RESIDUAL_SCALE"])
         layers, width = [], OBS_DIM
@@ -330,6 +336,11 @@ def check_config(config: dict) -> None:
     energy = config["FINETUNE_ENERGY"]
     if not (isinstance(energy, int | float) and not isinstance(energy, bool) and 0 <= energy < math.inf):
         problems.append("FINETUNE_ENERGY must be a non-negative finite number")
+    route_rate = config["ROUTE_LR"]
+    if not (
+        isinstance(route_rate, int | float) and not isinstance(route_rate, bool) and 0 <= route_rate <= 100
+    ):
+        problems.append("ROUTE_LR must be a number of metres in [0, 100]")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -423,11 +434,17 @@ class Budget:
 class Descent:
     """AdamW from a peak rate annealed to 0 by a cosine over ``total_steps`` (one fixed schedule, no
     warm-up), the run's WEIGHT_DECAY, every step's gradient clipped to GRAD_CLIP: cloning's and
-    fine-tuning's optimiser."""
+    fine-tuning's optimiser of the network. A ``route_rate`` > 0 adds the route form's waypoint
+    positions at that peak rate (metres a step, Adam's scale), on the same schedule, with no weight
+    decay (it would pull the waypoints to the port) and no clipping (Adam bounds their step)."""
 
-    def __init__(self, policy: Policy, rate: float, config: dict, total_steps: int):
-        self.parameters, self.grad_clip = list(policy.parameters()), config["GRAD_CLIP"]
-        self.optimizer = torch.optim.AdamW(self.parameters, lr=rate, weight_decay=config["WEIGHT_DECAY"])
+    def __init__(self, policy: Policy, rate: float, config: dict, total_steps: int, route_rate: float = 0.0):
+        self.parameters, self.grad_clip = list(policy.net.parameters()), config["GRAD_CLIP"]
+        groups = [{"params": self.parameters}]
+        if route_rate:
+            route = [policy.route_along, policy.route_across]
+            groups.append({"params": route, "lr": route_rate, "weight_decay": 0.0})
+        self.optimizer = torch.optim.AdamW(groups, lr=rate, weight_decay=config["WEIGHT_DECAY"])
         self.schedule = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total_steps))
         )
@@ -700,20 +717,33 @@ def norm(rows: torch.Tensor) -> torch.Tensor:
     return (rows.square().sum(dim=1) + 1e-12).sqrt()
 
 
-def finetune(config: dict, policy: Policy, device: torch.device, generator: torch.Generator, budget: Budget):
+def finetune(
+    config: dict,
+    policy: Policy,
+    device: torch.device,
+    generator: torch.Generator,
+    budget: Budget,
+    pool: Demonstrations | None = None,
+):
     """FINETUNE_STEPS steps of closed-loop fine-tuning after cloning (and DAgger): each flies the
-    policy from FINETUNE_STARTS starts drawn afresh from the training pool (never an evaluation
-    split) and descends :class:`ClosedLoop`'s loss; AdamW, FINETUNE_LR annealed to 0 by a cosine
-    schedule, the run's WEIGHT_DECAY and GRAD_CLIP, dropout off (the policy as it is flown). A spent
+    policy from FINETUNE_STARTS starts drawn afresh from ``pool`` (by default the run's training
+    pool; never an evaluation split) and descends :class:`ClosedLoop`'s loss; AdamW, FINETUNE_LR annealed to 0 by a cosine
+    schedule, the run's WEIGHT_DECAY and GRAD_CLIP, dropout off (the policy as it is flown). With
+    ROUTE_LR > 0 the route form's waypoint positions descend the same loss (Descent). A spent
     ``budget`` ends it before a step. Returns the policy and the fine-tuning's counts (steps taken,
-    the first and last steps' losses, seconds)."""
-    pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=expert_problem(config))
+    the first and last steps' losses, seconds, and the learned route's positions if any)."""
+    if pool is None:
+        pool = demonstrations(TASK, POOL_DEMOS, seed=DATA_SEED, problem=expert_problem(config))
     starts = torch.as_tensor(pool.starts, dtype=torch.float64, device=device)
     goals = torch.as_tensor(pool.goals, dtype=torch.float64, device=device)
     expert_energy = torch.as_tensor(control_effort(pool.trajectory_thrust(), PROBLEM)[0], device=device)
     loss_of = ClosedLoop(device, config["FINETUNE_ENERGY"])
     total = config["FINETUNE_STEPS"]
-    descent = Descent(policy, config["FINETUNE_LR"], config, total)
+    route_rate = config["ROUTE_LR"] if policy.form == "route" else 0.0
+    descent = Descent(policy, config["FINETUNE_LR"], config, total, route_rate)
+    if route_rate:
+        policy.route_along.requires_grad_(True)
+        policy.route_across.requires_grad_(True)
     policy.eval()
     losses, started = [], time.perf_counter()
     for _ in range(total):
@@ -730,6 +760,14 @@ def finetune(config: dict, policy: Policy, device: torch.device, generator: torc
     counts = {"steps": len(losses), "seconds": round(time.perf_counter() - started, 3)}
     if losses:
         counts |= {"first_loss": losses[0], "last_loss": losses[-1]}
+    if route_rate:
+        policy.route_along.requires_grad_(False)
+        policy.route_across.requires_grad_(False)
+        # metres, rounded: the record shows where the waypoints went (policy.pt holds them exactly)
+        counts["route"] = {
+            name: [round(x, 3) for x in getattr(policy, f"route_{name}").flatten().tolist()]
+            for name in ("along", "across")
+        }
     return policy.eval(), counts
 
 
@@ -894,7 +932,7 @@ def main() -> None:
         "best_train_loss": best_loss if math.isfinite(best_loss) else None,  # None: no epoch ran
         "train_seconds": round(train_seconds, 3),
         "eval_seconds": round(eval_seconds, 3),
-        "n_params": sum(p.numel() for p in policy.parameters()),
+        "n_params": sum(p.numel() for p in policy.net.parameters()),
         "n_train_pairs": n_train_pairs,
         **({"dagger": dagger_counts} if dagger_counts else {}),
         **({"finetune": finetune_counts} if finetune_counts else {}),
