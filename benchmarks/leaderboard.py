@@ -9,8 +9,10 @@ test split, 1024 screened starts), it flies:
 
 - the open-loop expert (the split's own demonstrations), receding-horizon MPC
   (:class:`cwh_envs.mpc.RecedingHorizon`), the closed-form shrinking-horizon minimum-energy law
-  (:class:`cwh_envs.controllers.MinEnergyFeedback`; through the task's CBF filter on docking) and
-  the PD law (through the filter on docking): nothing learned;
+  (:class:`cwh_envs.controllers.MinEnergyFeedback`; through the task's CBF filter on docking), on
+  constrained docking the same law re-planned through a hand-drawn route of waypoints
+  (:class:`cwh_envs.controllers.WaypointFeedback`, through the filter) and the PD law (through the
+  filter on docking): nothing learned;
 - behaviour cloning at the family's promoted best (``family.json``) and at the best recipe a
   key-free agent campaign certified (:data:`AGENT_RECIPES`), each trained by the family's own
   train.py at every seed of ``--seeds`` (the family best under the training time budget it was
@@ -52,7 +54,7 @@ from matplotlib.figure import Figure
 
 from autoresearch.editable import patch
 from autoresearch.execution.runner import TIME_BUDGET_ENV
-from cwh_envs.controllers import MinEnergyFeedback, pd_action
+from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback, pd_action
 from cwh_envs.core import filter_actions
 from cwh_envs.datasets import evaluation_set
 from cwh_envs.mpc import RecedingHorizon
@@ -246,6 +248,19 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
             lambda seed: MinEnergyFeedback(plain),
             "cwh_envs.controllers.MinEnergyFeedback",
         ),
+        *(
+            [  # constrained docking: the same law re-planned through a hand-drawn route (the cone's way in)
+                Entry(
+                    "routed feedback + CBF",
+                    "classical",
+                    True,
+                    lambda seed: WaypointFeedback(problem),
+                    "cwh_envs.controllers.WaypointFeedback (CONE_ROUTE)",
+                )
+            ]
+            if task.name == "docking-constrained"
+            else []
+        ),
         Entry(
             "PD" + (" + CBF" if docking else ""),
             "classical",
@@ -292,6 +307,7 @@ ROW_ORDER = (
     "open-loop expert",
     "MPC",
     "closed-form feedback",
+    "routed feedback",
     "PD",
     "family best (BC)",
     "key-free agent best (BC)",

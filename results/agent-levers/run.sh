@@ -13,6 +13,8 @@
 # SUFFIX names a further campaign of the same kind (the space grew: rendezvous' costate form).
 # WARM_FROM="DIR..." warm-starts from those campaigns instead; PROTOCOL=NAME searches under one of the
 # family's protocols (docking's `fuel`: feasible only at most 1.5x the expert's energy).
+# ENQUEUE=FILE runs that file's configurations first (loop --enqueue: a hand-found recipe the audit
+# can then reseed like any other candidate; the campaign records it as enqueued, not proposed).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 export OMP_NUM_THREADS=1 MPLBACKEND=Agg PATH="$PWD/.venv/bin:$PATH"
@@ -31,6 +33,7 @@ warm_start=(--warm-start "${warm[@]}")
 if [ "${WARM:-1}" = 0 ]; then dir=$dir-cold; warm_start=(); fi
 if [ -n "${WARM_FROM:-}" ]; then read -ra warm <<< "$WARM_FROM"; warm_start=(--warm-start "${warm[@]}"); fi
 protocol=(${PROTOCOL:+--protocol "$PROTOCOL"})
+enqueue=(${ENQUEUE:+--enqueue "$ENQUEUE"})
 dir=$dir${SUFFIX:+-$SUFFIX}  # e.g. SUFFIX=costate: a new campaign once the space has grown
 python "families/$family/prepare.py" --warm-cache  # every pool the space can ask for (a no-op when cached)
 start=$SECONDS
@@ -40,7 +43,7 @@ else
   # The plateau rule off: the campaign spends its run budget (the target is a report line by default).
   autoresearch loop --family "$family" --proposer gp --seed 0 --workers 2 --max-runs "$RUNS" \
     --max-iters 1000 --plateau-window 1000 --max-failures 20 --time-budget "$BUDGET" --eval-allowance 300 \
-    "${warm_start[@]}" "${protocol[@]}" --campaign "$dir" --plain
+    "${warm_start[@]}" "${protocol[@]}" "${enqueue[@]}" --campaign "$dir" --plain
 fi
 echo "[agent-levers] $family: campaign done at $((SECONDS - start)) s"
 if [ "${AUDIT:-audit}" = verify ]; then
