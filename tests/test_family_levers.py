@@ -491,6 +491,26 @@ def test_constrained_fine_tuning_flies_the_policy_as_the_env_does_and_sums_every
     assert excursion["speed"].max() > 1e-3 and (form == "direct" or excursion["cone"].max() > 1e-3)
 
 
+def test_constrained_fine_tuning_can_hold_a_narrower_cone(trains):
+    """FINETUNE_CONE_TIGHTEN: ClosedLoop's cone term is the slack of the cone narrowed by that many
+    degrees (same region), from the env's own states, and it counts more than the cone's own."""
+    train = trains["docking-constrained"]
+    problem, cpu = train.PROBLEM, torch.device("cpu")
+    policy = small_policy(train, "route")
+    starts, goals = starts_of(train, 16)
+    env = fly(problem, policy.act, starts, goals)
+    visited, at = env.states[:, 1:].reshape(-1, 6), np.repeat(goals, problem.horizon, axis=0)
+    half_angle, radius = problem.approach_cone
+    region, slack, _ = cone_terms(visited, at, (half_angle - 5.0, radius))
+    expected = np.where(region, np.maximum(-slack, 0), 0).reshape(16, problem.horizon).sum(axis=1)
+    with torch.no_grad():
+        flown = [torch.as_tensor(starts), torch.as_tensor(goals)]
+        tight = train.ClosedLoop(cpu, 0.0, 5.0).flight(policy, *flown)[1]["cone"]
+        plain = train.ClosedLoop(cpu, 0.0).flight(policy, *flown)[1]["cone"]
+    np.testing.assert_allclose(tight.numpy(), expected, rtol=1e-9, atol=1e-8)
+    assert (tight >= plain).all() and (tight > plain + 1e-3).any()
+
+
 def test_a_closed_loop_gradient_step_lowers_the_flown_distance(trains):
     """The loss's gradient reaches the network through the whole flight and points downhill: a small
     step against it lowers the mean terminal distance from the same starts."""

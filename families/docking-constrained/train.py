@@ -41,7 +41,8 @@ cloning: flown through the dynamics in torch without the filter (class ClosedLoo
 mean terminal distance plus its excursions beyond every constraint (keep-out intrusion, speed excess,
 distance outside the cone) plus FINETUNE_ENERGY x its energy over the expert's: the routing the
 filter cannot decide one step at a time. With ROUTE_LR > 0 the "route" form's waypoint positions
-(16 numbers) descend the same loss: the route itself is learnt.
+(16 numbers) descend the same loss: the route itself is learnt. FINETUNE_CONE_TIGHTEN narrows the
+cone that loss holds (a margin the filtered flight keeps).
 """
 
 from __future__ import annotations
@@ -96,6 +97,7 @@ FINETUNE_LR = 0.0001  # its AdamW peak learning rate, annealed to 0 by a cosine 
 FINETUNE_SHARE = 0.5  # under a time budget: the share kept for fine-tuning (cloning and DAgger get the rest)
 FINETUNE_ENERGY = 0.0  # its loss's weight on the flight's energy over the expert's, from the same starts
 ROUTE_LR = 0.0  # "route" form: fine-tuning's peak step for the waypoints' positions, m (0: fixed)
+FINETUNE_CONE_TIGHTEN = 0.0  # degrees: fine-tuning holds a cone this much narrower (0: the cone)
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -147,6 +149,7 @@ CONFIG_NAMES = (
     "FINETUNE_SHARE",
     "FINETUNE_ENERGY",
     "ROUTE_LR",
+    "FINETUNE_CONE_TIGHTEN",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual", "route")
@@ -341,6 +344,9 @@ def check_config(config: dict) -> None:
         isinstance(route_rate, int | float) and not isinstance(route_rate, bool) and 0 <= route_rate <= 100
     ):
         problems.append("ROUTE_LR must be a number of metres in [0, 100]")
+    tighten, half_angle = config["FINETUNE_CONE_TIGHTEN"], PROBLEM.approach_cone[0]
+    if not (isinstance(tighten, int | float) and not isinstance(tighten, bool) and 0 <= tighten < half_angle):
+        problems.append(f"FINETUNE_CONE_TIGHTEN must be a number of degrees in [0, {half_angle:g})")
     if problems:
         raise SystemExit(f"train.py: invalid configuration: {'; '.join(problems)}")
 
@@ -657,20 +663,22 @@ class ClosedLoop:
     - keep-out: ``relu(koz_radius + margin - |r|)`` (below the filter's standoff);
     - speed: ``relu(|v| - v0 - v1 |r - g|) dt``, the distance flown over the limit in the step;
     - cone: within its radius of the port, ``relu(cos(theta) |r - g| - a^T (r - g))``, how far
-      outside the cone (the constraint's own slack, cwh_envs.constraints; 0 within APEX of the port);
+      outside the cone (the constraint's own slack, cwh_envs.constraints; 0 within APEX of the port),
+      theta narrowed by ``cone_tighten`` degrees: a margin for the filtered flight, whose cone
+      switches on at its radius (a flight that enters the zone on the wall is outside it a step later);
 
     plus ``energy_weight`` x the batch's energy over the expert's from the same starts.
     Differentiable end to end (the clip passes no gradient where it binds, the cone's region is a
     mask)."""
 
-    def __init__(self, device: torch.device, energy_weight: float):
+    def __init__(self, device: torch.device, energy_weight: float, cone_tighten: float = 0.0):
         a, b = PROBLEM.matrices()
         self.a = torch.tensor(a.T, device=device)  # row states: x' = x A^T + (u_max a) B^T
         self.b = torch.tensor(b.T * PROBLEM.u_max, device=device)
         self.standoff = PROBLEM.koz_radius + PROBLEM.margin
         self.v0, self.v1 = PROBLEM.speed_limit
         half_angle, self.cone_radius = PROBLEM.approach_cone
-        self.cos = math.cos(math.radians(half_angle))
+        self.cos = math.cos(math.radians(half_angle - cone_tighten))
         self.energy_weight = energy_weight
 
     def flight(self, policy: Policy, starts: torch.Tensor, goals: torch.Tensor):
@@ -737,7 +745,7 @@ def finetune(
     starts = torch.as_tensor(pool.starts, dtype=torch.float64, device=device)
     goals = torch.as_tensor(pool.goals, dtype=torch.float64, device=device)
     expert_energy = torch.as_tensor(control_effort(pool.trajectory_thrust(), PROBLEM)[0], device=device)
-    loss_of = ClosedLoop(device, config["FINETUNE_ENERGY"])
+    loss_of = ClosedLoop(device, config["FINETUNE_ENERGY"], config["FINETUNE_CONE_TIGHTEN"])
     total = config["FINETUNE_STEPS"]
     route_rate = config["ROUTE_LR"] if policy.form == "route" else 0.0
     descent = Descent(policy, config["FINETUNE_LR"], config, total, route_rate)

@@ -12,7 +12,8 @@
 # filter: a hand probe, so the sealed test split stays for an audit. SCALE (RESIDUAL_SCALE),
 # BC_EPOCHS and BC_LR (EPOCHS, LEARNING_RATE) override the recipe's: a small correction barely
 # cloned starts fine-tuning near the route law itself. ROUTE_LR > 0 lets route-ft's fine-tuning
-# move the route's waypoints too (the family's ROUTE_LR, metres a step).
+# move the route's waypoints too (the family's ROUTE_LR, metres a step); CONE_TIGHTEN narrows the cone
+# its loss holds (FINETUNE_CONE_TIGHTEN, degrees).
 #   bash results/agent-levers/route-probe/run.sh > results/logs/agent_levers_route_probe.txt 2>&1
 #   ROOT=runs/route-probe-small SCALE=0.1 BC_EPOCHS=10 BC_LR=0.0001 FT_LR=0.0001 \
 #     bash results/agent-levers/route-probe/run.sh >> results/logs/agent_levers_route_probe.txt 2>&1
@@ -29,11 +30,12 @@ SCALE=${SCALE:-1.0}
 BC_EPOCHS=${BC_EPOCHS:-}
 BC_LR=${BC_LR:-}
 ROUTE_LR=${ROUTE_LR:-0.0}
+CONE_TIGHTEN=${CONE_TIGHTEN:-0.0}
 ARMS=${ARMS:-"route-bc route-ft"}
 root=${ROOT:-runs/route-probe}
 mkdir -p "$root"
 for arm in $ARMS; do
-  python - "$root/$arm.py" "$arm" "$FT_STEPS" "$FT_LR" "$ENERGY" "$SCALE" "$BC_EPOCHS" "$BC_LR" "$ROUTE_LR" <<'PY'
+  python - "$root/$arm.py" "$arm" "$FT_STEPS" "$FT_LR" "$ENERGY" "$SCALE" "$BC_EPOCHS" "$BC_LR" "$ROUTE_LR" "$CONE_TIGHTEN" <<'PY'
 import json, sys
 from pathlib import Path
 from autoresearch.editable import patch
@@ -45,7 +47,7 @@ if sys.argv[7]:
 if sys.argv[8]:
     config["LEARNING_RATE"] = float(sys.argv[8])
 if sys.argv[2] == "route-ft":
-    config |= {"FINETUNE_STEPS": int(sys.argv[3]), "FINETUNE_LR": float(sys.argv[4]), "FINETUNE_ENERGY": float(sys.argv[5]), "ROUTE_LR": float(sys.argv[9])}
+    config |= {"FINETUNE_STEPS": int(sys.argv[3]), "FINETUNE_LR": float(sys.argv[4]), "FINETUNE_ENERGY": float(sys.argv[5]), "ROUTE_LR": float(sys.argv[9]), "FINETUNE_CONE_TIGHTEN": float(sys.argv[10])}
 source = Path("families/docking-constrained/train.py").read_text()
 Path(sys.argv[1]).write_text(patch(source, config))
 print(sys.argv[2], "config:", json.dumps(config))
