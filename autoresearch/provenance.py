@@ -23,7 +23,7 @@ import json
 import platform
 import subprocess
 from importlib import metadata
-from itertools import combinations
+from itertools import combinations, product
 from pathlib import Path
 from typing import Any
 
@@ -94,9 +94,11 @@ def family_hashes_as_seen(family_dir: Path, seen: dict[str, Any]) -> set[str]:
     parameters and axes declared since left out, the baseline restricted to the parameters seen,
     the baseline's metric as seen, and each categorical's choices less any of those the campaign
     did not see (each such subset is tried: a protocol shows a campaign an axis narrowed to its
-    baseline, so which choices came later is not in ``seen``). One equals the recorded hash exactly
-    when the family only grew (new parameters, which every earlier run held at their baseline value;
-    new choices, which no earlier run drew; new fields such as ``protocols``, and new protocols, which
+    baseline, so which choices came later is not in ``seen``), and, tried with and without, each
+    numeric range put back to the one seen where it has only widened since. One equals the recorded
+    hash exactly when the family only grew (new parameters, which every earlier run held at their
+    baseline value; new choices, which no earlier run drew; ranges widened, which every earlier run
+    lies inside; new fields such as ``protocols``, and new protocols, which
     no earlier campaign searched) or its baseline was
     measured again (the metric is a measurement, like the seed noise, and every campaign measures
     its own baseline first: the search split moving from 128 to 512 starts re-measured it); empty
@@ -121,13 +123,22 @@ def family_hashes_as_seen(family_dir: Path, seen: dict[str, Any]) -> set[str]:
             for choice in spec["choices"]
             if choice not in space[name]["choices"]
         ]
+        widened = {
+            name: {**spec, "low": space[name]["low"], "high": space[name]["high"]}
+            for name, spec in kept["search_space"].items()
+            if spec.get("type") == space[name].get("type")
+            and all(isinstance(spec.get(k), int | float) for k in ("low", "high"))
+            and all(isinstance(space[name].get(k), int | float) for k in ("low", "high"))
+            and spec["low"] <= space[name]["low"] <= space[name]["high"] <= spec["high"]
+            and (spec["low"], spec["high"]) != (space[name]["low"], space[name]["high"])
+        }
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return set()
     sizes = range(len(unseen) + 1) if len(unseen) <= MAX_UNSEEN_CHOICES else (0, len(unseen))
     hashes = set()
-    for size in sizes:
+    for size, ranges in product(sizes, ({}, widened) if widened else ({},)):
         for later in combinations(unseen, size):
-            specs = dict(kept["search_space"])
+            specs = {**kept["search_space"], **ranges}
             for name, choice in later:
                 specs[name] = {**specs[name], "choices": [c for c in specs[name]["choices"] if c != choice]}
             text = json.dumps({**kept, "search_space": specs}, sort_keys=True)

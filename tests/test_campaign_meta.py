@@ -133,9 +133,9 @@ def grow(family_dir, name="WARMUP", axis="optimizer", spec_change=None, choices=
 
 
 def test_a_family_that_only_grew_is_the_same_family_to_its_campaigns(tmp_path, monkeypatch):
-    """New parameters (held at their baseline by every earlier run), a choice added to a categorical
-    and new fields keep a campaign readable and auditable; a changed bound of a parameter it
-    searched, or a choice taken away, does not."""
+    """New parameters (held at their baseline by every earlier run), a choice added to a categorical,
+    a range widened and new fields keep a campaign readable and auditable; a narrowed bound of a
+    parameter it searched, or a choice taken away, does not."""
     monkeypatch.chdir(tmp_path)
     toy = copy_toy(tmp_path)
     assert (
@@ -155,6 +155,10 @@ def test_a_family_that_only_grew_is_the_same_family_to_its_campaigns(tmp_path, m
         "relu",
         "gelu",
     )
+    grow(toy, spec_change=120)  # EPOCHS up to 120: every earlier run (at most 60) still lies inside
+    assert meta.open_family(tmp_path / "c").space.params["EPOCHS"].high == 120
+    grow(toy, choices=["tanh", "silu", "relu", "gelu"])  # spec_change left EPOCHS at 120: put it back
+    grow(toy, spec_change=60)
     for changed in ({"choices": ["tanh", "relu"]}, {"spec_change": 59}):
         grow(toy, **changed)
         with pytest.raises(CampaignError, match="search space changed"):
