@@ -201,6 +201,7 @@ def test_only_fine_tuning_with_a_route_rate_moves_the_route(trains, route_lr):
     rng = np.random.default_rng(0)
     obs, actions = rng.normal(size=(40, train.OBS_DIM)), rng.uniform(-1, 1, size=(40, 3))
     cpu, generator = torch.device("cpu"), torch.Generator().manual_seed(0)
+    torch.manual_seed(0)  # the network's initialisation: the same whatever ran before in this worker
     policy, _ = train.train(config, obs, actions, cpu, generator)
     route = lambda: torch.cat([policy.route_along, policy.route_across]).detach().clone()  # noqa: E731
     torch.testing.assert_close(route(), drawn, rtol=0, atol=0)  # cloning left it
