@@ -227,3 +227,36 @@ def test_graded_constraints_steer_the_search_towards_feasibility_before_any_run_
     graded, blind = proposals(True), proposals(False)  # X + Y of each seed's next proposal
     assert statistics.mean(graded) > 1.6, graded  # the corner is at 1.8 to 2.0
     assert statistics.mean(graded) > statistics.mean(blind) + 0.5, (graded, blind)
+
+
+def toy_metric(config):
+    return abs(math.log10(config["LEARNING_RATE"]) + 2) + config["DROPOUT"]
+
+
+@pytest.mark.parametrize("name", ["tpe", pytest.param("gp", marks=pytest.mark.needs("gp"))])
+def test_off_at_zero_lets_a_sampler_propose_exactly_zero(name):
+    """DROPOUT's range starts at 0 and the metric is best there: with the switch the sampler proposes
+    exactly 0 (and models it: most of its later draws). Without it TPE never does (its Parzen density
+    puts no mass on an end point); the GP's acquisition optimiser, bounded, can land on one. MOMENTUM,
+    also a real range from 0, gets a switch too; the int and log ranges none."""
+    registry = json.loads((TOY_FAMILY / "family.json").read_text())
+    zeros = {}
+    for off_at_zero in (False, True):
+        proposer = make_proposer(name, registry, seed=0, off_at_zero=off_at_zero)
+        history, drawn = [], []
+        for iteration in range(2, 32):
+            config = proposer.propose(context(history, iteration=iteration)).overrides
+            proposer.tell(RunOutcome(config, toy_metric(config), True))
+            history.append(config)
+            drawn.append(config["DROPOUT"])
+        zeros[off_at_zero] = sum(value == 0 for value in drawn[15:])  # after the random start-up
+    assert zeros[True] >= 10 and (name == "gp" or zeros[False] == 0)
+    assert sorted(n for n in proposer.distributions if n.endswith(":off")) == ["DROPOUT:off", "MOMENTUM:off"]
+    # A config at 0 is told as switched off; asking again from the same history asks the same.
+    off = next(t for t in proposer.trials if t.params["DROPOUT"] == 0)
+    assert off.params["DROPOUT:off"] is True and all(
+        t.params["DROPOUT:off"] is (t.params["DROPOUT"] == 0) for t in proposer.trials
+    )
+    assert proposer._ask(proposer.trials, 0) == proposer._ask(proposer.trials, 0)
+    with pytest.raises(ValueError, match="--off-at-zero applies to the tpe and gp samplers"):
+        make_proposer("random", registry, seed=0, off_at_zero=True)

@@ -141,6 +141,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         + "); kept in campaign.json",
     )
     p.add_argument(
+        "--off-at-zero",
+        action="store_true",
+        default=None,
+        help="tpe and gp: each real parameter whose range starts at 0 (dropout, weight decay) also gets an "
+        "off switch the sampler models, so that it can propose exactly 0 (a density over a range puts "
+        "no mass on its end); kept in campaign.json",
+    )
+    p.add_argument(
         "--protocol",
         metavar="NAME",
         help="search one of the protocols the family declares (family.json 'protocols'), e.g. 'paper': "

@@ -63,6 +63,7 @@ DEFAULTS: dict[str, Any] = {
     "warm_start": None,  # earlier campaigns of the family whose finished runs the proposer starts from
     "enqueue": None,
     "space": None,  # key-free proposers: None searches DEFAULT_SPACE[proposer]
+    "off_at_zero": False,  # tpe and gp: a real range starting at 0 gets an off switch (optuna_space)
     "protocol": None,  # one of the family's declared protocols (Family.under_protocol); None: its whole space
     "workers": 1,
     "executor": "local",
@@ -148,6 +149,7 @@ def build_loop(meta: CampaignMeta) -> tuple[Family, Proposer, LoopSettings]:
         model=settings["model"],
         base_url=settings["base_url"],
         space=settings["space"],
+        off_at_zero=settings["off_at_zero"],
         prior=warm.outcomes if warm and meta.proposer in KEY_FREE else (),
         **llm_kwargs(meta.proposer, settings),
     )

@@ -24,6 +24,7 @@ def make_proposer(
     base_url: str | None = None,
     prices: Any = None,
     space: str | None = None,
+    off_at_zero: bool = False,
     prior: Sequence[RunOutcome] = (),
     **llm_options: Any,
 ) -> Proposer:
@@ -31,11 +32,14 @@ def make_proposer(
 
     ``seed`` seeds the key-free proposers (an LLM's sampling cannot be seeded reliably);
     ``space`` is what a key-free proposer searches (default :data:`DEFAULT_SPACE`);
-    ``prior`` are earlier campaigns' runs a TPE or GP sampler starts from (``loop --warm-start``);
+    ``off_at_zero`` gives the tpe and gp samplers an off switch for each real range starting at 0
+    (autoresearch.proposers.optuna_space); ``prior`` are earlier campaigns' runs a TPE or GP sampler starts from (``loop --warm-start``);
     ``llm_options`` go to the LLM proposer's constructor (max_tokens, effort, profile, ...).
     """
     if prior and name not in ("tpe", "gp"):
         raise ValueError(f"earlier runs (--warm-start) are told to the tpe and gp samplers, not to {name!r}")
+    if off_at_zero and name not in ("tpe", "gp"):
+        raise ValueError(f"--off-at-zero applies to the tpe and gp samplers, not to {name!r}")
     if name in KEY_FREE and (model or base_url or llm_options):
         raise ValueError(f"--model, --base-url and the LLM flags apply to LLM proposers, not to {name!r}")
     if name not in KEY_FREE and space is not None:
@@ -51,12 +55,12 @@ def make_proposer(
     if name == "tpe":
         from autoresearch.proposers.tpe import TPEProposer
 
-        return TPEProposer(registry, seed=seed, space=space, prior=prior)
+        return TPEProposer(registry, seed=seed, space=space, prior=prior, off_at_zero=off_at_zero)
     if name == "gp":
         require("torch", "gp", "--proposer gp (Optuna's GPSampler)")
         from autoresearch.proposers.gp import GPProposer
 
-        return GPProposer(registry, seed=seed, space=space, prior=prior)
+        return GPProposer(registry, seed=seed, space=space, prior=prior, off_at_zero=off_at_zero)
     if name == "anthropic":
         if base_url:
             raise ValueError("--base-url applies to the openai proposer only")

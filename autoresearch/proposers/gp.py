@@ -36,8 +36,16 @@ class GPProposer(TPEProposer):
         n_startup_trials: int = N_STARTUP_TRIALS,
         space: str = "bounds",
         prior: Sequence[RunOutcome] = (),
+        off_at_zero: bool = False,
     ):
-        super().__init__(registry, seed=seed, n_startup_trials=n_startup_trials, space=space, prior=prior)
+        super().__init__(
+            registry,
+            seed=seed,
+            n_startup_trials=n_startup_trials,
+            space=space,
+            prior=prior,
+            off_at_zero=off_at_zero,
+        )
 
     def _ask(
         self, trials: list[FrozenTrial], attempt: int, running: Sequence[FrozenTrial] = ()
@@ -51,4 +59,4 @@ class GPProposer(TPEProposer):
         )
         study = optuna.create_study(direction=self.direction.study, sampler=sampler)
         study.add_trials([*trials, *running])
-        return self.space.validate_full(study.ask(self.distributions).params)
+        return self.config_of(study.ask(self.distributions))

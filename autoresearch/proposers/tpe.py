@@ -37,7 +37,7 @@ from optuna.trial import FrozenTrial, TrialState
 
 from autoresearch.direction import Direction
 from autoresearch.proposers.base import Proposal, Proposer, ProposerContext, RunOutcome
-from autoresearch.proposers.optuna_space import distributions
+from autoresearch.proposers.optuna_space import distributions, from_params, switchable, to_params
 from autoresearch.proposers.random_search import MAX_DRAWS, full_config_proposal, seen_configs
 from autoresearch.space import SearchSpace, canonical_key
 
@@ -59,6 +59,7 @@ class TPEProposer(Proposer):
         n_startup_trials: int = 10,
         space: str = "bounds",
         prior: Sequence[RunOutcome] = (),
+        off_at_zero: bool = False,
     ):
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         self.family_space = SearchSpace.from_json(registry["search_space"], tuple(registry["axes"]))
@@ -66,7 +67,9 @@ class TPEProposer(Proposer):
         self.direction = Direction.of(registry["direction"])
         self.seed = seed
         self.n_startup_trials = n_startup_trials
-        self.distributions = distributions(self.space)
+        # loop --off-at-zero: a real range starting at 0 gets an off switch (optuna_space)
+        self.switched = switchable(self.space) if off_at_zero else ()
+        self.distributions = distributions(self.space, off_at_zero)
         self.outcomes: list[RunOutcome] = []
         for outcome in prior:  # a warm start: earlier campaigns' runs, told before this campaign's
             self.tell(outcome)
@@ -103,7 +106,7 @@ class TPEProposer(Proposer):
                 trials.append(
                     optuna.trial.create_trial(
                         state=TrialState.PRUNED,
-                        params=outcome.config,
+                        params=to_params(outcome.config, self.switched),
                         distributions=self.distributions,
                         intermediate_values=outcome.curve,
                         user_attrs=attrs,
@@ -114,7 +117,7 @@ class TPEProposer(Proposer):
                 trials.append(
                     optuna.trial.create_trial(
                         state=TrialState.FAIL,
-                        params=outcome.config,
+                        params=to_params(outcome.config, self.switched),
                         distributions=self.distributions,
                         user_attrs=attrs,
                     )
@@ -127,7 +130,7 @@ class TPEProposer(Proposer):
             trials.append(
                 optuna.trial.create_trial(
                     value=crash_cost if outcome.metric is None else outcome.metric,
-                    params=outcome.config,
+                    params=to_params(outcome.config, self.switched),
                     distributions=self.distributions,
                     constraints=constraints,
                     user_attrs=attrs,
@@ -145,7 +148,11 @@ class TPEProposer(Proposer):
         )
         study = optuna.create_study(direction=self.direction.study, sampler=sampler)
         study.add_trials([*trials, *running])
-        return self.space.validate_full(study.ask(self.distributions).params)
+        return self.config_of(study.ask(self.distributions))
+
+    def config_of(self, trial: optuna.trial.BaseTrial) -> dict[str, Any]:
+        """The validated config an asked trial stands for (a switched-off parameter is 0)."""
+        return self.space.validate_full(from_params(trial.params, self.switched))
 
     def propose(self, context: ProposerContext) -> Proposal:
         seen = seen_configs(context)
@@ -154,7 +161,9 @@ class TPEProposer(Proposer):
         configs = (self.family_space.validate_full(item["config"]) for item in context.running)
         running = [
             optuna.trial.create_trial(
-                state=TrialState.RUNNING, params=config, distributions=self.distributions
+                state=TrialState.RUNNING,
+                params=to_params(config, self.switched),
+                distributions=self.distributions,
             )
             for config in configs
             if self.space.contains(config)
