@@ -593,6 +593,33 @@ def test_a_phase_of_a_budget_stops_at_its_share_and_marks_the_run_cut(trains, na
     assert not trains[name].Budget(None).first(0.5).spent()  # no budget, no limit
 
 
+def test_a_budget_paces_the_rendezvous_schedule_to_end_annealed(trains):
+    """Without a budget the cosine runs over the steps alone, as it always has; under one, its progress
+    is the larger of the steps' and the clock's share, so a phase the budget cuts ends at rate 0."""
+    train = trains["rendezvous"]
+    config = defaults(train)
+
+    def rate_after(descent, steps: int, pause: float = 0.0) -> float:
+        for _ in range(steps):
+            time.sleep(pause)
+            descent.step(sum(p.sum() for p in descent.parameters))
+        return descent.optimizer.param_groups[0]["lr"]
+
+    peak, total = 1e-3, 100
+    plain = train.Descent(small_policy(train, "direct"), peak, config, total)
+    assert rate_after(plain, 3) == pytest.approx(peak * 0.5 * (1 + math.cos(math.pi * 3 / total)), rel=1e-12)
+    roomy = train.Descent(small_policy(train, "direct"), peak, config, total, seconds=3600.0)
+    assert rate_after(roomy, 3) == pytest.approx(peak * 0.5 * (1 + math.cos(math.pi * 3 / total)), rel=1e-6)
+    # 3 steps of 100 would leave the rate near its peak; 0.3 s of a 0.2 s clock anneals it to 0
+    paced = train.Descent(small_policy(train, "direct"), peak, config, total, seconds=0.2)
+    assert 0 < rate_after(paced, 1) < peak
+    assert rate_after(paced, 2, pause=0.15) == 0.0
+    assert train.Budget(None).remaining() is None
+    budget = train.Budget(10.0)
+    budget.start()
+    assert 9.0 < budget.remaining() <= 10.0 and 4.0 < budget.first(0.5).remaining() <= 5.0
+
+
 # Docking relabels with its SCP (about 0.2 s a state from an untrained policy's states): one round
 # from one start keeps it near a minute.
 @pytest.mark.parametrize(

@@ -388,6 +388,10 @@ class Budget:
         part.started = self.started
         return part
 
+    def remaining(self) -> float | None:
+        """Seconds left (None without a budget): what a phase starting now paces its schedule by."""
+        return None if self.seconds is None else max(self.seconds - (time.perf_counter() - self.started), 0.0)
+
     def spent(self) -> bool:
         """Whether the time is up; the first time it is, the budget (and the whole it is part of) was cut."""
         over = self.seconds is not None and time.perf_counter() - self.started >= self.seconds
@@ -401,14 +405,26 @@ class Budget:
 class Descent:
     """AdamW from a peak rate annealed to 0 by a cosine over ``total_steps`` (one fixed schedule, no
     warm-up), the run's WEIGHT_DECAY, every step's gradient clipped to GRAD_CLIP: cloning's and
-    fine-tuning's optimiser."""
+    fine-tuning's optimiser.
 
-    def __init__(self, policy: Policy, rate: float, config: dict, total_steps: int):
+    Under a time budget the cosine is paced by ``seconds`` too: its progress is the larger of the
+    steps' and the clock's share, so a phase the budget cuts ends annealed (karpathy/autoresearch's
+    schedule), not at a high rate mid-schedule. Without a budget the schedule is the steps' alone."""
+
+    def __init__(
+        self, policy: Policy, rate: float, config: dict, total_steps: int, seconds: float | None = None
+    ):
         self.parameters, self.grad_clip = list(policy.parameters()), config["GRAD_CLIP"]
         self.optimizer = torch.optim.AdamW(self.parameters, lr=rate, weight_decay=config["WEIGHT_DECAY"])
-        self.schedule = torch.optim.lr_scheduler.LambdaLR(
-            self.optimizer, lambda s: 0.5 * (1.0 + math.cos(math.pi * s / total_steps))
-        )
+        started = time.perf_counter()
+
+        def factor(step: int) -> float:
+            progress = step / total_steps
+            if seconds is not None:
+                progress = max(progress, (time.perf_counter() - started) / seconds) if seconds > 0 else 1.0
+            return 0.5 * (1.0 + math.cos(math.pi * min(progress, 1.0)))
+
+        self.schedule = torch.optim.lr_scheduler.LambdaLR(self.optimizer, factor)
 
     def step(self, loss: torch.Tensor) -> None:
         self.optimizer.zero_grad(set_to_none=True)
@@ -451,7 +467,12 @@ def train(
     else:
         plan_loss, y = None, torch.as_tensor(targets / PROBLEM.u_max, dtype=torch.float32, device=device)
     steps_per_epoch = math.ceil(len(x) / config["BATCH_SIZE"])
-    descent = Descent(policy, config["LEARNING_RATE"], config, config["EPOCHS"] * steps_per_epoch)
+    # Under a budget this round paces its schedule by its share of the time left: the rounds still to
+    # run (this one and the DAgger rounds after it) share it evenly.
+    rounds_left = 1 + config["DAGGER_ITERS"] - first_epoch // config["EPOCHS"]
+    left = None if budget is None else budget.remaining()
+    seconds = None if left is None else left / rounds_left
+    descent = Descent(policy, config["LEARNING_RATE"], config, config["EPOCHS"] * steps_per_epoch, seconds)
     best_loss = math.inf
     run_epochs = config["EPOCHS"] * (1 + config["DAGGER_ITERS"])
     progress_epochs = {math.ceil(run_epochs * k / PROGRESS_POINTS) for k in range(1, PROGRESS_POINTS + 1)}
@@ -561,7 +582,7 @@ def finetune(config: dict, policy: Policy, device: torch.device, generator: torc
     starts = torch.as_tensor(pool, dtype=torch.float64, device=device)
     loss_of = ClosedLoop(device)
     total = config["FINETUNE_STEPS"]
-    descent = Descent(policy, config["FINETUNE_LR"], config, total)
+    descent = Descent(policy, config["FINETUNE_LR"], config, total, budget.remaining())
     policy.eval()
     losses, started = [], time.perf_counter()
     for _ in range(total):
