@@ -34,6 +34,9 @@ arm_flags() {
     random) echo "--proposer random --timeout-per-run $TIMEOUT" ;;
     tpe) echo "--proposer tpe --timeout-per-run $TIMEOUT" ;;
     tpe-hyperband) echo "--proposer tpe --early-stop hyperband --time-budget $BUDGET" ;;
+    # the new arm again, with TPE's off switches for dropout and weight decay, on the family's
+    # budget-paced schedule (a later session: random, TPE and the new arm above ran before both)
+    tpe-hyperband-off) echo "--proposer tpe --early-stop hyperband --time-budget $BUDGET --off-at-zero" ;;
   esac
 }
 python families/rendezvous/prepare.py --warm-cache  # its data sets, once (a no-op when cached)
@@ -58,6 +61,10 @@ for ((r = 0; r < REPEATS; r++)); do
     echo "[keyfree-search] $dir done at $((SECONDS - start)) s"
   done
 done
-autoresearch compare "$ROOT/random" "$ROOT/tpe" "$ROOT/tpe-hyperband" --out "$ROOT/compare"
+arms_run=()
+for arm in random tpe tpe-hyperband tpe-hyperband-off; do
+  if [ -d "$ROOT/$arm" ]; then arms_run+=("$ROOT/$arm"); fi
+done
+autoresearch compare "${arms_run[@]}" --out "$ROOT/compare"
 python results/keyfree-search/summarize.py "$ROOT"
 echo "[keyfree-search] total wall time: $((SECONDS - start)) s"
