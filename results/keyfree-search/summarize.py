@@ -7,7 +7,7 @@ its one reseeded candidate) with its config and its test_metric (the reseeded me
 split), the search split's beside it and the gate's verdict. Then the issue's target, the hand recipe's
 certified test metric plus 15 %, met or not by each repeat of the new arm, and the difference of the
 mean test metric of the new arm and of random search with a 95 % bootstrap interval (separable when
-the interval excludes 0). Writes ROOT/summary.json and prints a Markdown table.
+the interval excludes 0); the same for each later variant of the new arm (``later_arms``). Writes ROOT/summary.json and prints a Markdown table.
 """
 
 from __future__ import annotations
@@ -24,8 +24,10 @@ from autoresearch.campaign.group import repeat_dirs
 from autoresearch.family import Family
 
 REPO = Path(__file__).resolve().parents[2]
-ARMS = ("random", "tpe", "tpe-hyperband")
+ARMS = ("random", "tpe", "tpe-hyperband", "tpe-hyperband-off")
 NEW_ARM, REFERENCE_ARM = "tpe-hyperband", "random"
+# A later session's variant of the new arm (--off-at-zero, the paced schedule), judged the same way
+LATER_ARMS = ("tpe-hyperband-off",)
 HAND = "results/rendezvous/hand"  # the hand recipe's campaign: its promotion is the reference
 WITHIN = 0.15  # the target: the new arm's audited best at most 15 % above the hand recipe
 
@@ -78,29 +80,44 @@ def difference_interval(new: list[float], reference: list[float]) -> list[float]
     return [float(result.confidence_interval.low), float(result.confidence_interval.high)]
 
 
+def within(values: list[float], target: float) -> str:
+    return f"{sum(v <= target for v in values)} of {len(values)}"
+
+
+def against(new: list[float], reference: list[float]) -> dict:
+    """mean(new) - mean(reference) with its bootstrap interval; separable when it excludes 0."""
+    interval = difference_interval(new, reference)
+    return {
+        "mean_difference": float(np.mean(new) - np.mean(reference)) if new and reference else None,
+        "bootstrap_95": interval,
+        "separable": bool(interval is not None and (interval[1] < 0 or interval[0] > 0)),
+    }
+
+
 def main() -> int:
     root = Path(sys.argv[1] if len(sys.argv) > 1 else REPO / "results" / "keyfree-search")
     hand = hand_recipe()
     target = hand["test_metric"] * (1 + WITHIN)
-    arms = {arm: [audited_best(d) for d in repeat_dirs(root / arm)] for arm in ARMS}
+    arms = {arm: [audited_best(d) for d in repeat_dirs(root / arm)] for arm in ARMS if (root / arm).is_dir()}
     values = {
         arm: [r["test_metric"] for r in rows if r["test_metric"] is not None] for arm, rows in arms.items()
     }
-    interval = difference_interval(values[NEW_ARM], values[REFERENCE_ARM])
     summary = {
         "command": "bash results/keyfree-search/run.sh",
         "hand_recipe": hand,
         "target": {"test_metric_at_most": target, "within": WITHIN},
         "arms": arms,
         "new_arm": NEW_ARM,
-        "new_arm_within_target": f"{sum(v <= target for v in values[NEW_ARM])} of {len(values[NEW_ARM])}",
+        "new_arm_within_target": within(values[NEW_ARM], target),
         "not_audited": {arm: len(rows) - len(values[arm]) for arm, rows in arms.items()},
-        "new_arm_minus_random": {
-            "mean_difference": float(np.mean(values[NEW_ARM]) - np.mean(values[REFERENCE_ARM]))
-            if values[NEW_ARM] and values[REFERENCE_ARM]
-            else None,
-            "bootstrap_95": interval,
-            "separable": bool(interval is not None and (interval[1] < 0 or interval[0] > 0)),
+        "new_arm_minus_random": against(values[NEW_ARM], values[REFERENCE_ARM]),
+        "later_arms": {
+            arm: {
+                "within_target": within(values[arm], target),
+                "minus_random": against(values[arm], values[REFERENCE_ARM]),
+            }
+            for arm in LATER_ARMS
+            if arm in values
         },
     }
     (root / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
@@ -122,6 +139,12 @@ def main() -> int:
         f"(not audited yet: {summary['not_audited']}); mean difference to random "
         f"{diff['mean_difference']}, 95 % bootstrap {diff['bootstrap_95']}, separable: {diff['separable']}"
     )
+    for arm, later in summary["later_arms"].items():
+        diff = later["minus_random"]
+        print(
+            f"{arm} within the target in {later['within_target']} audited repeats; mean difference to "
+            f"random {diff['mean_difference']}, 95 % bootstrap {diff['bootstrap_95']}, separable: {diff['separable']}"
+        )
     print(f"written: {root / 'summary.json'}")
     return 0
 
