@@ -108,6 +108,9 @@ def audited_best(campaign: Path, train, test, retraining: bool) -> dict | None:
     return None if found is None else {"config_id": config_id, **found}
 
 
+ARMS = ("random", "tpe", "tpe-hyperband", "tpe-hyperband-off")  # run.sh's arms, in its order
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--retrain", action="store_true", help="train again the reseeds not on this machine")
@@ -115,9 +118,7 @@ def main() -> None:
     args = parser.parse_args()
     root = args.root.resolve()
     earlier = json.loads((root / "tails.json").read_text()) if (root / "tails.json").exists() else {}
-    flown_before = {
-        e["campaign"]: e for arm in ("random", "tpe", "tpe-hyperband") for e in earlier.get(arm, [])
-    }
+    flown_before = {e["campaign"]: e for arm in ARMS for e in earlier.get(arm, [])}
     train = load_train(FAMILY)
     test = evaluation_set(train.TASK, train.N_TEST, problem=train.PROBLEM, split="test")
     out, lines = {}, []
@@ -136,7 +137,7 @@ def main() -> None:
         out["hand_recipe"] = earlier["hand_recipe"]
     if "hand_recipe" in out:
         line("hand recipe", "-", out["hand_recipe"])
-    for arm in ("random", "tpe", "tpe-hyperband"):
+    for arm in ARMS:
         for campaign in sorted((root / arm).glob("repeat-*")):
             name = campaign.relative_to(REPO).as_posix()
             found = audited_best(campaign, train, test, args.retrain)
