@@ -14,18 +14,9 @@ import tempfile
 from pathlib import Path
 
 root = Path(__file__).resolve().parents[2]
-hand = dict(
-    N_DEMOS=1024,
-    EPOCHS=50,
-    LEARNING_RATE=0.001,
-    BATCH_SIZE=256,
-    WEIGHT_DECAY=0.0,
-    GRAD_CLIP=1.0,
-    HIDDEN_DIM=256,
-    N_LAYERS=4,
-    ACTIVATION="gelu",
-    DROPOUT=0.0,
-)
+# the hand recipe as the ledger promoted it (summarize.py's reference)
+ledger = json.loads((root / "families/rendezvous/ledger.json").read_text())
+hand = next(p for p in ledger["promotions"] if p["source"]["campaign"] == "results/rendezvous/hand")["config"]
 d = Path(tempfile.mkdtemp(prefix="keyfree-hand-"))  # a copy of the family, the hand recipe written in
 shutil.copytree(root / "families/rendezvous", d, ignore=shutil.ignore_patterns("runs", "logs"))
 src = (root / "families/rendezvous/train.py").read_text()
