@@ -7,24 +7,18 @@ import json
 import sys
 
 import numpy as np
-import onnxruntime as ort
 
 sys.path.insert(0, "families/rendezvous")
 import train
 
 from cwh_envs.datasets import evaluation_set
+from cwh_envs.onnx_policy import OnnxPolicy
 from cwh_envs.rollout import fly
 
 test = evaluation_set(train.TASK, train.N_TEST, problem=train.PROBLEM, split="test")
 print("test split key", test.content_key)
 for d in sys.argv[1:]:
-    session = ort.InferenceSession(f"{d}/policy.onnx")
-    name = session.get_inputs()[0].name
-
-    def act(obs, session=session, name=name):
-        return session.run(None, {name: np.asarray(obs, dtype=np.float32)})[0]
-
-    flight = fly(train.PROBLEM, act, test.starts)
+    flight = fly(train.PROBLEM, OnnxPolicy(f"{d}/policy.onnx"), test.starts)
     mean = float(np.mean(flight.terminal_distance))
     rows = [json.loads(line) for line in open(f"{d}/audit/verify/runs.jsonl")]
     logged = sorted(round(r["splits"]["test"]["mean_terminal_distance"], 5) for r in rows)
