@@ -145,7 +145,7 @@ def export_checked(
     source: str | os.PathLike,
     *,
     rows: int = 1024,
-    tolerance: float = 1e-5,
+    tolerance: float = 1e-4,
 ) -> dict[str, Any]:
     """Export a family's trained ``policy`` (a ``Policy`` with ``obs_mean``, ``obs_std`` and ``act``)
     with :func:`export_policy`, then hold the file to the torch policy on ``rows`` observations.

@@ -25,7 +25,7 @@ from cwh_envs.onnx_policy import export_checked
 
 ENV_ID = "CWHDockKOZ-v0"
 CHECK_ROWS = 1024  # observations the exported file is compared with the torch policy on
-CHECK_TOLERANCE = 1e-5  # largest |action difference| accepted (actions lie in [-1, 1])
+CHECK_TOLERANCE = 1e-4  # largest |action difference| accepted (actions in [-1, 1]); why: docs/examples.md
 
 
 def main() -> None:
