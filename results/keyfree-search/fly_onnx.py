@@ -1,25 +1,41 @@
 """Fly committed policy.onnx files on the rendezvous test split as built here, beside their logged reseeds.
 
-.venv/bin/python results/keyfree-search/fly_onnx.py CAMPAIGN... > results/logs/keyfree_fly_onnx.txt
+Each file is flown by examples/fly_onnx.py (the user's tool: it checks the file's task and problem
+constants and scores the flight with the family's metric function).
+
+    .venv/bin/python results/keyfree-search/fly_onnx.py CAMPAIGN... > results/logs/keyfree_fly_onnx.txt
 """
 
 import json
+import subprocess
 import sys
-
-import numpy as np
-
-sys.path.insert(0, "families/rendezvous")
-import train
+from pathlib import Path
 
 from cwh_envs.datasets import evaluation_set
-from cwh_envs.onnx_policy import OnnxPolicy
-from cwh_envs.rollout import fly
+from cwh_envs.prepare import load_train
 
-test = evaluation_set(train.TASK, train.N_TEST, problem=train.PROBLEM, split="test")
-print("test split key", test.content_key)
+REPO = Path(__file__).resolve().parents[2]
+train = load_train(REPO / "families" / "rendezvous")
+print(
+    "test split key",
+    evaluation_set(train.TASK, train.N_TEST, problem=train.PROBLEM, split="test").content_key,
+)
 for d in sys.argv[1:]:
-    flight = fly(train.PROBLEM, OnnxPolicy(f"{d}/policy.onnx"), test.starts)
-    mean = float(np.mean(flight.terminal_distance))
+    flown = subprocess.run(
+        [
+            sys.executable,
+            REPO / "examples" / "fly_onnx.py",
+            "--family",
+            "rendezvous",
+            f"{d}/policy.onnx",
+            "--split",
+            "test",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    mean = json.loads(flown.stdout)[train.METRIC]
     rows = [json.loads(line) for line in open(f"{d}/audit/verify/runs.jsonl")]
-    logged = sorted(round(r["splits"]["test"]["mean_terminal_distance"], 5) for r in rows)
+    logged = sorted(round(r["splits"]["test"][train.METRIC], 5) for r in rows)
     print(d, "flown here", round(mean, 5), "logged reseeds", logged)
