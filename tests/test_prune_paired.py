@@ -69,7 +69,7 @@ def test_paired_deltas_are_the_designed_effects_at_every_edit(p1):
     for x in d.values():  # each probe is paired with the full configuration at its own seed
         for probe in x["probes"]:
             assert probe["full_run_id"].endswith(f"-s{probe['seed']}")
-    assert paired["unit"] == {"at": "baseline", "sigma": pytest.approx(SIGMA), "n": 4}
+    assert paired["unit"] == {"at": "baseline", "split": "search", "sigma": pytest.approx(SIGMA), "n": 4}
 
 
 def test_every_edit_gets_its_own_fresh_probe_seeds(p1):

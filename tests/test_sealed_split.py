@@ -1,5 +1,6 @@
 """The sealed test split end to end on real subprocesses: the audit scores every reseed on both
-splits from one training and gates on the test split; no proposer ever sees a test-split value.
+splits from one training, chooses on the search split and gates on the test split; no proposer ever
+sees a test-split value.
 
 tests/audit_family scores its test split as the search loss plus 1000 (its TEST_OFFSET): every
 designed effect holds on it unchanged, and any number of 1000 or more in what a proposer is shown
@@ -27,7 +28,7 @@ from autoresearch.audit.noise import measure_noise
 from autoresearch.audit.prune import prune
 from autoresearch.audit.random_arm import run_random_arm
 from autoresearch.audit.report import write_report
-from autoresearch.audit.verify import verify
+from autoresearch.audit.verify import pick_key, verify
 from autoresearch.campaign import CampaignMeta
 from autoresearch.campaign.audit_log import StepLog, read_audit
 from autoresearch.campaign.meta import EVAL_ALLOWANCE
@@ -86,9 +87,10 @@ def test_the_noise_is_measured_on_both_splits_from_the_same_runs(sealed):
     )
 
 
-def test_verify_gates_and_promotes_on_the_test_split(sealed):
+def test_verify_gates_on_the_test_split_and_picks_on_the_search_split(sealed):
     family, root, verified, *_ = sealed
     assert verified["split"] == "test" and verified["sealed_split"] is True
+    assert verified["picked_on"] == "search"
     assert verified["noise"]["mean"] > OFFSET  # the gate's reference is the test-split noise
     for candidate in verified["candidates"]:
         search, test = candidate["by_split"]["search"], candidate["by_split"]["test"]
@@ -100,9 +102,12 @@ def test_verify_gates_and_promotes_on_the_test_split(sealed):
     assert read_audit(root)["verify"]["split"] == "test"
 
 
-def test_prune_decides_on_the_test_split_exactly_as_designed(sealed):
-    _, _, _, pruned, _ = sealed
-    assert pruned["split"] == "test"
+def test_prune_decides_on_the_search_split_exactly_as_designed_and_gates_on_the_test_split(sealed):
+    family, _, _, pruned, _ = sealed
+    assert pruned["split"] == "test" and pruned["decided_on"] == "search"
+    noise = Family.load(family.path).seed_noise  # the search split's
+    assert pruned["unit"] == {"at": "baseline", "split": "search", "sigma": noise["std"], "n": 4}
+    assert pruned["mu_r"] < OFFSET  # the probes' reference: the candidate's reseeded search-split mean
     decisions = {d["param"]: d["decision"] for d in pruned["decisions"]}
     assert decisions == {
         "EPOCHS": "keep",
@@ -112,7 +117,9 @@ def test_prune_decides_on_the_test_split_exactly_as_designed(sealed):
         "DAGGER": "drop-dagger",
         "GAP": "keep",
     }
-    assert all(p["metric"] > OFFSET for d in pruned["decisions"] for p in d["probes"])
+    probes = [p for d in pruned["decisions"] for p in d["probes"]]
+    assert all(p["metric"] < OFFSET for p in probes)
+    assert [p["test_metric"] - OFFSET for p in probes] == pytest.approx([p["metric"] for p in probes])
     assert pruned["pruned"]["split"] == "test" and pruned["pruned"]["mu_r"] > OFFSET
 
 
@@ -140,7 +147,8 @@ def test_the_random_arms_console_lines_print_numbers_at_their_precision(sealed, 
 def test_the_report_shows_both_splits_and_says_which_decided(sealed):
     _, root, verified, *_ = sealed
     text = write_report(root).read_text()
-    assert "The test split decided" in text and "Selection gap of the promoted recipe" in text
+    assert "The search split chose, the sealed test split gated" in text
+    assert "Selection gap of the promoted recipe" in text and "on the search split, in units of" in text
     promoted = next(c for c in verified["candidates"] if c["config_id"] == verified["promoted"])
     assert f"{promoted['by_split']['search']['mu_r']:.4g}" in text and f"{promoted['mu_r']:.4g}" in text
 
@@ -154,6 +162,44 @@ def test_gate_split_search_keeps_the_papers_protocol(tmp_path):
     assert verified["split"] == "search" and candidate["mu_r"] < OFFSET
     assert candidate["by_split"]["test"]["mu_r"] == pytest.approx(candidate["mu_r"] + OFFSET)
     assert "The search split decided" in write_report(root).read_text()
+
+
+def test_a_test_split_that_ranks_otherwise_picks_nothing(tmp_path, monkeypatch):
+    """On the sealed split the erratic P1W looks far better than P1 (AUDIT_TEST_SHIFT); both pass
+    the gate there. Verification still promotes P1, the better on the search split, and pruning
+    still decides every edit as designed though one reverted edit looks like a gain on test."""
+    family = sealed_family(tmp_path / "family")
+    root = run_campaign(family, tmp_path / "campaign", ScriptedProposer([P1, P1W]), iterations=3)
+    measure_noise(family, SERIAL, k=4, campaign=open_campaign(root))
+    monkeypatch.setenv("AUDIT_TEST_SHIFT", "WIDE=true:-0.5")
+    verified = verify(open_campaign(root), LocalExecutor(2), top=2, n_seeds=4)
+    tight, wide = (config_id({**family.baseline_config, **p}) for p in (P1, P1W))
+    by_id = {c["config_id"]: c for c in verified["candidates"]}
+    assert by_id[tight]["passed"] and by_id[wide]["passed"]
+    assert by_id[wide]["bound"] > by_id[tight]["bound"]  # picked on the test split, P1W would win
+    assert by_id[wide]["by_split"]["search"]["mu_r"] == pytest.approx(
+        by_id[tight]["by_split"]["search"]["mu_r"]
+    )
+    assert verified["promoted"] == tight and family_best(family.path)["config"] == by_id[tight]["config"]
+    monkeypatch.setenv("AUDIT_TEST_SHIFT", 'HITCH="a":-0.5')  # reverting HITCH gains 0.5 on test only
+    pruned = prune(open_campaign(root), LocalExecutor(2))
+    decisions = {d["param"]: d for d in pruned["decisions"]}
+    assert decisions["HITCH"]["decision"] == "drop" and decisions["DAGGER"]["decision"] == "drop-dagger"
+    probes = decisions["HITCH"]["probes"]
+    assert [p["test_metric"] - OFFSET for p in probes] == pytest.approx([p["metric"] - 0.5 for p in probes])
+
+
+def test_the_test_split_refuses_the_search_pick_and_the_next_passing_one_is_promoted(tmp_path, monkeypatch):
+    family = sealed_family(tmp_path / "family")
+    root = run_campaign(family, tmp_path / "campaign", ScriptedProposer([P1, P1W]), iterations=3)
+    measure_noise(family, SERIAL, k=4, campaign=open_campaign(root))
+    monkeypatch.setenv("AUDIT_TEST_SHIFT", "GAP=1.0,WIDE=false:0.6")  # P1 no better than the baseline on test
+    verified = verify(open_campaign(root), LocalExecutor(2), top=2, n_seeds=4)
+    tight, wide = (config_id({**family.baseline_config, **p}) for p in (P1, P1W))
+    by_id = {c["config_id"]: c for c in verified["candidates"]}
+    assert pick_key(by_id[tight], family.direction) > pick_key(by_id[wide], family.direction)
+    assert not by_id[tight]["passed"] and "m =" in by_id[tight]["reason"] and by_id[wide]["passed"]
+    assert verified["promoted"] == wide
 
 
 def test_a_family_without_a_sealed_split_gates_as_before_and_says_so(tmp_path):

@@ -17,13 +17,17 @@ Dropped edits are then reverted together and the pruned recipe is re-verified at
 is published only if it clears the same gate (against the baseline noise) and keeps the target.
 Otherwise the full configuration stands and the dropped group is reported as mattering jointly.
 A published recipe that also ranks above the full configuration by verification's promotion rule
-(the better pessimistic end of its reseeded mean's 95 % interval) is promoted in its place: it
+(the better pessimistic end of its reseeded search-split mean's 95 % interval) is promoted in its place: it
 becomes the family best, and the report's figures and exported policy are its. Otherwise it is
 recorded beside the full configuration as its distilled recipe. The rule that runs last decides.
 
-Every probe and re-verification is scored on the split verification gated on (the sealed test
-split, where the family has one): the decisions, the re-verification gate and the published recipe
-use it, in units of the seed noise measured on that split.
+The splits, as in verification: the search split decides, the sealed test split gates. Every
+probe and re-verification is scored on both splits (where the family has a sealed one) from one
+training. Which edits are dropped is decided on the search split (probes against the candidate's
+reseeded search-split mean, in units of the seed noise measured there), and so is whether the
+pruned recipe ranks above the full one; the pruned recipe's re-verification is gated on the split
+verification gated on, against that split's noise, and can refuse it there. A probe's record keeps
+its test-split value beside the deciding one (``test_metric``).
 
 Two cases the metric-only equation does not cover, both resolved as keep: a reverted run that
 fails to train, and one that is infeasible (reverting breaks the safety constraint, e.g. the
@@ -38,11 +42,11 @@ from typing import Any
 
 from autoresearch import ledger
 from autoresearch.audit import stats, tails
-from autoresearch.audit.inputs import AuditedCampaign, AuditError, Rereading, config_id
+from autoresearch.audit.inputs import AuditedCampaign, AuditError, Rereading, config_id, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
+from autoresearch.audit.verify import PICK_SPLIT, assess, is_this_campaign, pick_key, promote
 from autoresearch.audit.verify import STEP as VERIFY_STEP
-from autoresearch.audit.verify import assess, is_this_campaign, promote
 from autoresearch.campaign.audit_log import TrialRow, read_audit, write_step
 from autoresearch.execution.executors import Executor
 from autoresearch.journal import read_json
@@ -89,13 +93,14 @@ RULES = tuple(Rule(paired, at) for paired in (False, True) for at in NOISE_AT)
 
 
 def _probe(row: TrialRow, split: Split) -> dict[str, Any]:
-    score = row.on(split)
+    score, test = row.on(split), row.on(Split.TEST)
     return {
         "seed": row.seed,
         "run_id": row.run_id,
         "status": row.status,
         "metric": score and score.metric,
         "feasible": score and score.feasible,
+        **({"test_metric": test.metric} if test and split is not Split.TEST else {}),
     }
 
 
@@ -140,7 +145,7 @@ def leave_one_out(
     decides on the paired differences, in units of ``sigma``; every value is read on ``split``.
     """
     family, sign = campaign.family, campaign.family.direction
-    config, mu_r, baseline = full["config"], full["mu_r"], family.baseline_config
+    config, mu_r, baseline = full["config"], on_split(full, split)["mu_r"], family.baseline_config
     cid = full["config_id"]
 
     def probe(names: list[str], stage: int) -> tuple[list[TrialRow], dict[int, TrialRow]]:
@@ -196,16 +201,25 @@ def leave_one_out(
     return decisions
 
 
-def _unit(rule: Rule, noise: dict[str, Any], full: dict[str, Any]) -> dict[str, Any]:
+def on_split(candidate: dict[str, Any], split: Split) -> dict[str, Any]:
+    """A reseeded candidate's {mu_r, sigma_r, n} on ``split`` (an entry written before ``by_split``
+    was scored on the search split alone)."""
+    return (candidate.get("by_split") or {}).get(split.value) or candidate
+
+
+def _unit(rule: Rule, noise: dict[str, Any], full: dict[str, Any], split: Split) -> dict[str, Any]:
+    """The decisions' noise unit on ``split``: the baseline's seed noise ``noise`` measured there, or
+    the candidate's own reseed spread there."""
     if rule.noise_at == "baseline":
-        return {"at": "baseline", "sigma": noise["std"], "n": noise["k"]}
-    sigma_r = full.get("sigma_r")
+        return {"at": "baseline", "split": split.value, "sigma": noise["std"], "n": noise["k"]}
+    on = on_split(full, split)
+    sigma_r = on.get("sigma_r")
     if not sigma_r or sigma_r <= 0:
         raise AuditError(
             f"--noise-at candidate: the promoted configuration {full['config_id']} has no positive reseed "
             f"spread sigma_R in its verification (got {sigma_r!r}); re-run `autoresearch verify` with --seeds >= 2"
         )
-    return {"at": "candidate", "sigma": sigma_r, "n": full["n"]}
+    return {"at": "candidate", "split": split.value, "sigma": sigma_r, "n": on["n"]}
 
 
 def _plan(
@@ -238,10 +252,11 @@ def prune(
         _finish(campaign, rule, part)
         return part
     family, sign = campaign.family, campaign.family.direction
-    noise = verified["noise"]  # the noise the promotion was judged against, on its split
+    noise = verified["noise"]  # the noise the gate was judged against, on its split
     split = Split(verified.get("split", Split.SEARCH))
     full = next(c for c in verified["candidates"] if c["config_id"] == verified["promoted"])
-    unit = _unit(rule, noise, full)
+    decide = PICK_SPLIT
+    unit = _unit(rule, noise if split is decide else seed_noise(family, decide), full, decide)
     n_seeds = n_seeds or len(verified["seeds"])
     if n_seeds < 2:
         raise ValueError(f"--seeds {n_seeds}: re-verification needs >= 2 seeds")
@@ -250,9 +265,10 @@ def prune(
         "rule": rule.name,
         "paired": rule.paired,
         "split": split.value,
+        "decided_on": decide.value,
         "unit": unit,
         "promoted": full["config_id"],
-        "mu_r": full["mu_r"],
+        "mu_r": on_split(full, decide)["mu_r"],
         "noise": noise,
         "probe_seeds": sorted({s for seeds in per_edit.values() for s in seeds}),
         "reverify_seeds": reverify_seeds,
@@ -261,7 +277,7 @@ def prune(
     earlier = campaign.rereading(rule.key, campaign.step_dir(STEP) / "prune.jsonl")
     write_step(campaign.root, rule.key, {**part, "status": "running"})
     decisions = leave_one_out(
-        campaign, executor, full, unit["sigma"], per_edit, paired=rule.paired, split=split
+        campaign, executor, full, unit["sigma"], per_edit, paired=rule.paired, split=decide
     )
     dropped = [n for n, d in decisions.items() if d["decision"] in stats.DROPPED]
     part.update(
@@ -291,7 +307,7 @@ def prune(
         publish, retained = stats.prune_publish(
             pruned["passed"], pruned["mu_r"], full["mu_r"], family.target, sign
         )
-    promotes = publish and (pruned["bound"], sign * pruned["mu_r"]) > (full["bound"], sign * full["mu_r"])
+    promotes = publish and pick_key(pruned, sign) > pick_key(full, sign)
     part.update(pruned=pruned, published=publish, target_retained=retained, promotes_pruned=promotes)
     if publish:
         if reaches_target(full["mu_r"], family.target, sign):

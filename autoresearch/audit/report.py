@@ -254,12 +254,20 @@ def split_note(audit: dict[str, Any]) -> str:
             "test split when they ran), so the gate, the pruning and the promoted best use the search split "
             "the campaign selected on (the paper's protocol)."
         )
+    if split == "test" and verify.get("picked_on") is None and len(verify.get("candidates", [])) > 1:
+        return (  # an audit.json from before the search split chose (its prune part says what decided it)
+            "**The test split decided**: every reseed was also scored on the family's sealed test split, which "
+            "no proposer ever saw; the gate and the promotion among the candidates used it, against the seed "
+            "noise measured on it, so the promoted recipe's test-split mean is the best of several. The search "
+            "split, which the campaign selected on, is shown beside it: the difference is the selection gap."
+        )
     if split == "test":
         return (
-            "**The test split decided**: every reseed was also scored on the family's sealed test split, which "
-            "no proposer ever saw; the gate, the pruning decisions and the promoted best use it, against the "
-            "seed noise measured on it. The search split, which the campaign selected on, is shown beside it: "
-            "the difference is the selection gap."
+            "**The search split chose, the sealed test split gated**: every reseed was also scored on the "
+            "family's sealed test split, which no proposer ever saw. The gate and the pruned recipe's "
+            "re-verification run on it, against the seed noise measured on it, and can refuse a recipe; which "
+            "candidate is promoted and which edits are pruned are decided on the search split, so the test "
+            "split measures that choice instead of making it. The difference between the two is the selection gap."
         )
     return (
         "**The search split decided** (`--gate-split search`, the paper's protocol), although the family has "
@@ -413,7 +421,7 @@ def prune_section(campaign: AuditedCampaign, prune: dict[str, Any]) -> list[str]
     else:
         how = f"at the shared probe seeds {prune['probe_seeds']}; Δ is measured against μ_R"
     lines = [
-        f"Each edit of {prune['promoted']} reverted alone {how}, on the {prune.get('split', 'search')} split, "
+        f"Each edit of {prune['promoted']} reverted alone {how}, on the {prune.get('decided_on', prune.get('split', 'search'))} split, "
         f"in units of {_unit_text(prune)} (negative = reverting hurts):",
         "",
         "| Parameter | Axis | Default → value | Δ1/σ | Δ2/σ | Decision | Note |",

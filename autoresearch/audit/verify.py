@@ -10,15 +10,19 @@ whose 95 % confidence interval of the reseeded mean has the best pessimistic end
 minimized metric, the lowest upper bound). It may differ from the single-seed best: a lucky,
 erratic configuration loses to a tight one, as in both of the paper's campaigns.
 
-The split: candidates are ranked on the search split (what the campaign selected on); for a
-family with a sealed test split every reseed is scored on both splits from one training, and the
-gate, the promotion and the family best use the test split, against the seed noise measured on
-that split (``--gate-split search`` keeps the paper's protocol). Each candidate also carries
-``by_split``: its reseeded mean on every split it was scored on, the selection gap side by side.
+The splits: the search split chooses, the sealed test split gates. For a family with a sealed
+test split every reseed is scored on both splits from one training. The gate runs on the test
+split, against the seed noise measured there; it can refuse a candidate but never ranks one: the
+promotion rule reads each candidate's reseeded search-split mean (:func:`pick_key`), so which
+recipe is promoted is decided without the sealed split, and its test-split numbers are a
+measurement of that choice, not the best of several (``--gate-split search`` gates on the search
+split too: the paper's protocol). Each candidate carries ``by_split``: its reseeded mean on every
+split it was scored on, the selection gap side by side.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -37,6 +41,17 @@ from autoresearch.splits import Split
 from autoresearch.verdicts import best_feasible, ranking
 
 STEP = "verify"
+PICK_SPLIT = Split.SEARCH  # what ranks candidates; the sealed split only gates (module docstring)
+
+
+def pick_key(candidate: dict[str, Any], sign: int) -> tuple[float, float]:
+    """The promotion rule's key for a reseeded candidate, on the search split: the pessimistic end
+    of its reseeded mean's 95 % interval, then the mean (higher is better). An entry without
+    ``by_split`` (written before the sealed split) was scored on the search split alone."""
+    on = (candidate.get("by_split") or {}).get(PICK_SPLIT.value) or candidate
+    if on.get("sigma_r") is None:  # a single valid reseed: no interval, ranked last
+        return -math.inf, sign * on["mu_r"]
+    return stats.reproducibility_bound(on["mu_r"], on["sigma_r"], on["n"], sign), sign * on["mu_r"]
 
 
 def rank_candidates(campaign: AuditedCampaign, top: int) -> list[dict[str, Any]]:
@@ -296,6 +311,7 @@ def verify(
         "sealed_split": family.has_test_split,
         "noise": {k: noise[k] for k in ("mean", "std", "k")},
         "top": top,
+        "picked_on": PICK_SPLIT.value,
         "single_seed_best": None,
         "candidates": candidates,
         "promoted": None,
@@ -337,7 +353,7 @@ def verify(
         candidate.update(assess(own, source_loss, noise, sign, split, family.tail_fields, gate))
     passing = [c for c in candidates if c["passed"]]
     if passing:
-        promoted = max(passing, key=lambda c: (c["bound"], sign * c["mu_r"]))
+        promoted = max(passing, key=lambda c: pick_key(c, sign))
         part["promoted"] = promoted["config_id"]
         part["family_best"] = promote(campaign, promoted)
     part.update(

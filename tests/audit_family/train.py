@@ -16,6 +16,9 @@ JOINT_A/B      save 0.3 only together: each alone is inert, both reverted regres
 WIDE           erratic: the noise is ten times larger and of the opposite sign
 AUDIT_THROTTLE_SEED (environment): that seed reports a tripled best_train_loss (parity guard).
 AUDIT_SLEEP_S (environment): every run sleeps this long first (an audit made slow on purpose).
+AUDIT_TEST_SHIFT (environment), e.g. 'WIDE=true:-0.5' or 'GAP=1.0,WIDE=false:0.6': a run whose
+config has every NAME=VALUE listed (VALUE read as JSON) scores DELTA more on the sealed split only
+(a test split that ranks recipes differently from the search split).
 
 --eval-split test (a copy whose family.json sets test_split): the sealed split's loss is the search
 loss plus TEST_OFFSET, so every designed effect holds on it unchanged, and a value of at least
@@ -80,6 +83,15 @@ def train(config: dict, seed: int) -> dict:
     }
 
 
+def test_shift(config: dict, spec: str) -> float:
+    """AUDIT_TEST_SHIFT's DELTA when ``config`` matches every NAME=VALUE of ``spec``, else 0."""
+    if not spec:
+        return 0.0
+    conditions, delta = spec.rsplit(":", 1)
+    pairs = (item.split("=", 1) for item in conditions.split(","))
+    return float(delta) if all(config[name] == json.loads(value) for name, value in pairs) else 0.0
+
+
 def main() -> int:
     here = Path(__file__).resolve().parent
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -93,7 +105,8 @@ def main() -> int:
     scores = train(CONFIG, args.seed)
     splits = {"search": {"loss": scores["loss"], "feasible": scores["feasible"]}}
     if args.eval_split == "test":
-        splits["test"] = {"loss": scores["loss"] + TEST_OFFSET, "feasible": scores["feasible"]}
+        test_loss = scores["loss"] + TEST_OFFSET + test_shift(CONFIG, os.environ.get("AUDIT_TEST_SHIFT", ""))
+        splits["test"] = {"loss": test_loss, "feasible": scores["feasible"]}
     record = {
         "run_id": args.run_id,
         **scores,
