@@ -162,6 +162,10 @@ def test_an_audit_of_a_changed_family_measures_the_noise_again(audited, tmp_path
     copy = Family.load(copy.path)
     assert [line.split(":")[0] for line in stale_noise(copy)] == ["train.py"]
     root = run_campaign(copy, tmp_path / "campaign", ScriptedProposer([P1]), iterations=2)
+    assert main(["verify", "--campaign", str(root), "--top", "1", "--seeds", "2"]) == 2  # no gate on it
+    refused = capsys.readouterr().err
+    assert "measured on another version of it (train.py: sha256" in refused
+    assert "`autoresearch noise --family" in refused
     assert main(["audit", "--campaign", str(root), "--noise-seeds", "2", "--seeds", "2", "--count", "2"]) == 0
     assert "measuring again" in capsys.readouterr().out
     noise = Family.load(copy.path).seed_noise

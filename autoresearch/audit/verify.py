@@ -29,7 +29,15 @@ from typing import Any
 
 from autoresearch import ledger
 from autoresearch.audit import stats, tails
-from autoresearch.audit.inputs import AuditedCampaign, changed_params, config_id, gate_split, seed_noise
+from autoresearch.audit.inputs import (
+    AuditedCampaign,
+    AuditError,
+    changed_params,
+    config_id,
+    gate_split,
+    seed_noise,
+)
+from autoresearch.audit.noise import stale_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
 from autoresearch.campaign import Record
@@ -303,6 +311,13 @@ def verify(
     family, sign = campaign.family, campaign.family.direction
     split = gate_split(family, split)
     noise = seed_noise(family, split)
+    stale = stale_noise(family)
+    if stale:  # a gate against another version's noise would certify nothing
+        raise AuditError(
+            f"family {family.name!r}: its seed noise was measured on another version of it ({'; '.join(stale)}); "
+            f"measure it again first: `autoresearch noise --family {family.path}` (or `autoresearch audit`, "
+            "which does it)"
+        )
     candidates = rank_candidates(campaign, top)
     best_run = campaign.single_seed_best()
     part: dict[str, Any] = {
