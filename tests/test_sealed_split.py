@@ -181,6 +181,7 @@ def test_a_test_split_that_ranks_otherwise_picks_nothing(tmp_path, monkeypatch):
         by_id[tight]["by_split"]["search"]["mu_r"]
     )
     assert verified["promoted"] == tight and family_best(family.path)["config"] == by_id[tight]["config"]
+    assert verified["reason"].endswith("of those, the best bound on the search split is promoted")
     monkeypatch.setenv("AUDIT_TEST_SHIFT", 'HITCH="a":-0.5')  # reverting HITCH gains 0.5 on test only
     pruned = prune(open_campaign(root), LocalExecutor(2))
     decisions = {d["param"]: d for d in pruned["decisions"]}

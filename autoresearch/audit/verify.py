@@ -373,7 +373,8 @@ def verify(
         part["family_best"] = promote(campaign, promoted)
     part.update(
         status="done",
-        reason=f"{len(passing)} of {len(candidates)} candidate(s) passed the gate on the {split} split",
+        reason=f"{len(passing)} of {len(candidates)} candidate(s) passed the gate on the {split} split"
+        + (f"; of those, the best bound on the {PICK_SPLIT} split is promoted" if len(passing) > 1 else ""),
         provenance=earlier.kept("provenance", campaign.provenance),
     )
     write_step(campaign.root, STEP, part)
