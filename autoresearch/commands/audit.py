@@ -23,7 +23,7 @@ from autoresearch.commands.common import (
 from autoresearch.commands.export import update_live_journal
 from autoresearch.commands.prune import add_rule_arguments, print_prune, rule_of
 from autoresearch.commands.random_arm import print_random
-from autoresearch.commands.verify import add_gate_argument, print_verify
+from autoresearch.commands.verify import add_gate_argument, add_gate_split_argument, print_verify
 from autoresearch.splits import Split
 
 
@@ -48,12 +48,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--count", type=positive_int, help="random-arm experiments (default: the campaign's)")
     p.add_argument("--matched-range", action="store_true", help="also run a matched-range random arm")
     p.add_argument("--arm", action="append", type=Path, default=[], help="another arm to plot (repeatable)")
-    p.add_argument(
-        "--gate-split",
-        choices=[split.value for split in Split],
-        help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
-        "test split where the family has one, else search; search is the paper's protocol)",
-    )
+    add_gate_split_argument(p)
     add_gate_argument(p)
     add_rule_arguments(p)
     add_audit_arguments(p)

@@ -24,15 +24,20 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--campaign", required=True, help="campaign directory")
     p.add_argument("--top", type=positive_int, default=3, help="candidates to reseed (default 3)")
     p.add_argument("--seeds", type=positive_int, default=10, help="fresh seeds per candidate (default 10)")
-    p.add_argument(
-        "--gate-split",
-        choices=[split.value for split in Split],
-        help="the split the gate, the pruning decisions and the promoted best use (default: the sealed "
-        "test split where the family has one, else search; search is the paper's protocol)",
-    )
+    add_gate_split_argument(p)
     add_gate_argument(p)
     add_audit_arguments(p)
     return p
+
+
+def add_gate_split_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--gate-split",
+        choices=[split.value for split in Split],
+        help="the split the gate and the pruned recipe's re-verification use (default: the sealed test "
+        "split where the family has one, else search; search is the paper's protocol). Which candidate is "
+        "promoted and which edits are pruned is decided on the search split either way",
+    )
 
 
 def add_gate_argument(parser: argparse.ArgumentParser) -> None:
