@@ -45,7 +45,7 @@ from autoresearch.audit import stats, tails
 from autoresearch.audit.inputs import AuditedCampaign, AuditError, Rereading, config_id, seed_noise
 from autoresearch.audit.seeds import fresh_seeds, used_seeds
 from autoresearch.audit.trials import Trial, run_trials
-from autoresearch.audit.verify import PICK_SPLIT, assess, is_this_campaign, pick_key, promote
+from autoresearch.audit.verify import PICK_SPLIT, assess, is_this_campaign, on_split, pick_key, promote
 from autoresearch.audit.verify import STEP as VERIFY_STEP
 from autoresearch.campaign.audit_log import TrialRow, read_audit, write_step
 from autoresearch.execution.executors import Executor
@@ -199,12 +199,6 @@ def leave_one_out(
             d["decision"] = stats.loo_decision(d["delta1"], sigma, d.get("delta2"))
         stage = [name for name in stage if decisions[name]["decision"] == stats.ESCALATE]
     return decisions
-
-
-def on_split(candidate: dict[str, Any], split: Split) -> dict[str, Any]:
-    """A reseeded candidate's {mu_r, sigma_r, n} on ``split`` (an entry written before ``by_split``
-    was scored on the search split alone)."""
-    return (candidate.get("by_split") or {}).get(split.value) or candidate
 
 
 def _unit(rule: Rule, noise: dict[str, Any], full: dict[str, Any], split: Split) -> dict[str, Any]:

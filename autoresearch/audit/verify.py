@@ -52,11 +52,16 @@ STEP = "verify"
 PICK_SPLIT = Split.SEARCH  # what ranks candidates; the sealed split only gates (module docstring)
 
 
+def on_split(candidate: dict[str, Any], split: Split) -> dict[str, Any]:
+    """A reseeded candidate's {mu_r, sigma_r, n} on ``split`` (an entry written before ``by_split``
+    was scored on the search split alone)."""
+    return (candidate.get("by_split") or {}).get(split.value) or candidate
+
+
 def pick_key(candidate: dict[str, Any], sign: int) -> tuple[float, float]:
     """The promotion rule's key for a reseeded candidate, on the search split: the pessimistic end
-    of its reseeded mean's 95 % interval, then the mean (higher is better). An entry without
-    ``by_split`` (written before the sealed split) was scored on the search split alone."""
-    on = (candidate.get("by_split") or {}).get(PICK_SPLIT.value) or candidate
+    of its reseeded mean's 95 % interval, then the mean (higher is better)."""
+    on = on_split(candidate, PICK_SPLIT)
     if on.get("sigma_r") is None:  # a single valid reseed: no interval, ranked last
         return -math.inf, sign * on["mu_r"]
     return stats.reproducibility_bound(on["mu_r"], on["sigma_r"], on["n"], sign), sign * on["mu_r"]

@@ -7,6 +7,7 @@ the test-split noise: the gate's m >= 2).
 
 from pathlib import Path
 
+from autoresearch.audit.stats import mean_sd
 from autoresearch.campaign.audit_log import StepLog
 from autoresearch.family import Family
 from autoresearch.splits import Split
@@ -16,11 +17,6 @@ OLD = {  # where the replaced noise was measured (its ledger's runs_dir)
     "docking": "results/sealed/docking/noise-512",
     "docking-constrained": "results/docking-constrained/gp/audit/noise",
 }
-
-
-def spread(values: list[float]) -> tuple[float, float]:
-    mean = sum(values) / len(values)
-    return mean, (sum((v - mean) ** 2 for v in values) / (len(values) - 1)) ** 0.5
 
 
 print(
@@ -38,7 +34,7 @@ for name, old_dir in OLD.items():
             runs[label] = {row.seed: row.on(split).metric for row in rows if row.ok}
         seeds = sorted(runs["new"])
         old, new = ([runs[k][s] for s in seeds] for k in ("old", "new"))
-        (m0, s0), (m1, s1) = spread(old), spread(new)
+        (m0, s0), (m1, s1) = mean_sd(old), mean_sd(new)
         change = max(abs(a - b) for a, b in zip(old, new, strict=True))
         margins = " | "
         if split is Split.TEST and best and best.get("split") == "test":
