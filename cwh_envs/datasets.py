@@ -2,10 +2,16 @@
 
 Every builder is a pure function of (task, n, seed, every problem field, and the code that builds
 the data); that tuple, hashed, names the cache file, so neither a changed constant nor a changed
-sampler or expert can serve a stale set. Files are
-written to a temporary name and renamed into place (atomic on POSIX), so concurrent runs at
-worst build the same file twice. Cache directory: the ``cache_dir`` argument, else
-``$CWH_ENVS_CACHE``, else ``~/.cache/cwh_envs``.
+sampler or expert can serve a stale set. Each file also holds the sha256 of its arrays, checked
+whenever it is read: a file whose arrays were changed is rebuilt, with a line on stderr that says
+so, never used. Files are written to a temporary name and renamed into place (atomic on POSIX), so
+concurrent runs at worst build the same file twice. Cache directory: the ``cache_dir`` argument,
+else ``$CWH_ENVS_CACHE``, else ``~/.cache/cwh_envs``.
+
+The evaluation splits of the problems the families score on are not built here: their starts ship
+with the package (:mod:`cwh_envs.splits`), and only the expert's trajectories from them are solved
+on this machine, each checked against the energy shipped for its start. A problem of the user's own
+(no shipped split) has its starts screened here as below, with a warning that says so.
 
 Random streams (``np.random.SeedSequence(seed, spawn_key=(stream, task))``) are disjoint by
 construction: training seeds use stream 0, recovery stream 1, the search split of the evaluation
@@ -33,14 +39,15 @@ import os
 import sys
 import tempfile
 import time
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from cwh_envs import constraints, dynamics, experts, observations, problems, sampling, socp
-from cwh_envs.experts import Infeasible, solve_docking, solve_rendezvous
+from cwh_envs import constraints, dynamics, experts, observations, problems, sampling, socp, splits
+from cwh_envs.experts import Infeasible, solve_docking, solve_rendezvous, solve_rendezvous_many
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 from cwh_envs.sampling import (
@@ -50,7 +57,7 @@ from cwh_envs.sampling import (
     screened_rendezvous,
 )
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: every file holds the sha256 of its arrays
 TASKS = ("rendezvous", "docking")
 EVAL_CHECK_SEEDS = 32  # training seeds whose candidate streams the evaluation set is checked against
 EVAL_CHECK_CANDIDATES = 16384  # candidates per seed checked: ~4x what 256 docking demos consume
@@ -91,6 +98,12 @@ class Demonstrations:
             digest.update(f"{name}:{array.dtype.str}:{array.shape}".encode())
             digest.update(array.tobytes())
         return digest.hexdigest()[:16]
+
+    @property
+    def starts_key(self) -> str:
+        """The identity of the starts and docking points alone (:func:`cwh_envs.splits.split_identity`):
+        names the split a run was scored on, whatever the expert's floats on this machine."""
+        return splits.split_identity(self.starts, self.goals)
 
     def trajectory_thrust(self) -> np.ndarray:
         """Thrust (E, H, 3) [N] of sets whose trajectories all cover the whole horizon (the evaluation splits)."""
@@ -184,18 +197,117 @@ def evaluation_set(
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
     n = DEFAULT_EVAL_SIZE[split] if n is None else n
     _check_count("n", n)
+    shipped = splits.shipped_split(task, problem, split)
+    if shipped is not None:
+        return _shipped_set(task, n, problem, shipped, cache_dir, build)
+    _warn_unshipped(task, problem, split)
     key = _cache_key("evaluation", task, problem, n=n, split=split)
 
-    def build_held_out() -> Demonstrations:
-        rng = _rng(_SPLIT_STREAM[split], task, 0)
-        held_out = _build_demonstrations(task, n, rng, problem, f"{task} {split} split")
+    return _cached(cache_dir, key, lambda: screen_split(task, n, problem, split=split), build)
+
+
+def screen_split(
+    task: str, n: int, problem=None, *, split: str = "search", check: bool = True
+) -> Demonstrations:
+    """Draw a split's starts from its own stream and keep those the expert solves, with the expert's
+    trajectories (not cached). This made the shipped splits (scripts/make_splits.py); a problem with
+    no shipped split gets its splits this way. ``check`` asserts the starts are none of the candidates
+    of training seeds 0..EVAL_CHECK_SEEDS-1 (and, for the test split, of the search split)."""
+    problem = _problem(task, problem)
+    _check_count("n", n)
+    held_out = _build_demonstrations(
+        task, n, _rng(_SPLIT_STREAM[split], task, 0), problem, f"{task} {split} split"
+    )
+    if check:
         streams = {f"training seed {seed}": (_TRAIN_STREAM, seed) for seed in range(EVAL_CHECK_SEEDS)}
         if split == "test":
             streams["the search split"] = (_SPLIT_STREAM["search"], 0)
         _check_disjoint(task, held_out.starts, problem, streams)
-        return held_out
+    return held_out
 
-    return _cached(cache_dir, key, build_held_out, build)
+
+def shipped_split_label(task: str, n: int, problem=None, *, split: str = "search") -> str | None:
+    """The name of the shipped split a family scoring on the first ``n`` starts of ``split`` uses (e.g.
+    ``"docking/test-v0, first 1024"``), or None when none ships for ``problem``."""
+    shipped = splits.shipped_split(task, _problem(task, problem), split)
+    if shipped is None:
+        return None
+    return shipped.label + ("" if n == len(shipped) else f", first {n}")
+
+
+def _shipped_set(task, n, problem, shipped: splits.ShippedSplit, cache_dir, build) -> Demonstrations:
+    """The first ``n`` starts of a shipped split with the expert's trajectories from them, solved here
+    once (and cached), each start's energy checked against the shipped one."""
+    starts, goals = shipped.first(n)
+    key = _cache_key(
+        "evaluation", task, problem, n=n, split=shipped.split, starts=splits.split_identity(starts, goals)
+    )
+
+    def mismatch(held: Demonstrations) -> str | None:
+        if not (np.array_equal(held.starts, starts) and np.array_equal(held.goals, goals)):
+            return f"its starts are not those of the shipped split {shipped.label}"
+        energy = np.einsum("nki,nki->n", *(held.trajectory_thrust(),) * 2) * problem.dt
+        return shipped.energy_mismatch(energy)
+
+    def solve_shipped() -> Demonstrations:
+        held = _solve_starts(
+            task, starts, goals, problem, f"{task} {shipped.split} split (expert, {shipped.label})"
+        )
+        why = mismatch(held)
+        if why is not None:
+            raise splits.SplitError(why)
+        return held
+
+    return _cached(cache_dir, key, solve_shipped, build, check=mismatch)
+
+
+def _solve_starts(task, starts, goals, problem, label) -> Demonstrations:
+    """The expert's trajectories from given starts, in order; a start it cannot solve is an error.
+    Rendezvous is solved in slices of 8, as the screen solves its candidates (the batched solve's
+    floats depend on the batch's size), so a shipped split gets the trajectories its screen kept."""
+    n = len(starts)
+    progress = _Progress(label, n)
+    states, controls, unsolved = [], [], []
+    if task == "rendezvous":
+        for first in range(0, n, 8):
+            block_states, block_controls, solved = solve_rendezvous_many(starts[first : first + 8], problem)
+            states.extend(block_states)
+            controls.extend(block_controls)
+            unsolved.extend((first + i, "the reach tolerance is not met") for i in np.flatnonzero(~solved))
+            progress.update(min(first + 8, n))
+    else:
+        for i, (x0, goal) in enumerate(zip(starts, goals, strict=True)):
+            try:
+                trajectory, thrust = solve_docking(x0, goal, problem)
+            except Infeasible as err:
+                unsolved.append((i, str(err)))
+                break
+            states.append(trajectory)
+            controls.append(thrust)
+            progress.update(i + 1)
+    if unsolved:
+        i, why = unsolved[0]
+        raise splits.SplitError(
+            f"{label}: the expert cannot solve start {i} ({np.array2string(starts[i], precision=6)}) on this "
+            f"machine ({why}), though it did when the split was made"
+        )
+    progress.close()
+    return _pack(task, problem, starts, goals, states, controls, np.zeros(n, dtype=int))
+
+
+_WARNED: set[str] = set()
+
+
+def _warn_unshipped(task: str, problem, split: str) -> None:
+    key = json.dumps([task, split, splits.problem_fields(problem)], sort_keys=True)
+    if key not in _WARNED:
+        _WARNED.add(key)
+        warnings.warn(
+            f"no {split} split ships for this {task} problem (cwh_envs/data/manifest.json lists those "
+            "that do): its starts are screened on this machine, and numbers scored on them are not the "
+            "benchmark's",
+            stacklevel=3,
+        )
 
 
 def recovery_demonstrations(
@@ -399,23 +511,35 @@ def _check_disjoint(task: str, held_out: np.ndarray, problem, streams: dict[str,
 # ---------------------------------------------------------------------------------------- cache
 
 
-def _cached(cache_dir, key: dict, build, build_missing: bool, kind: type = Demonstrations):
-    """``kind`` (a dataclass of arrays) from the cache file named by ``key``, else built and stored."""
+def _cached(cache_dir, key: dict, build, build_missing: bool, kind: type = Demonstrations, check=None):
+    """``kind`` (a dataclass of arrays) from the cache file named by ``key``, else built and stored.
+
+    A file is used only if its arrays hash to the checksum stored beside them and ``check`` (when
+    given) finds nothing wrong with what they hold; otherwise it is rebuilt (with a line on stderr
+    saying why) or, under ``build_missing=False``, reported as a :class:`CacheMiss` that says why.
+    """
     text = json.dumps(key, sort_keys=True)
     digest = hashlib.sha256(text.encode()).hexdigest()[:20]
     path = cache_directory(cache_dir) / f"{key['kind']}-{key['task']}-{digest}.npz"
     names = [field.name for field in dataclasses.fields(kind)]
-    loaded = _load(path, text, kind, names)
+    loaded, why = _load(path, text, kind, names)
+    if loaded is not None and check is not None:
+        why = check(loaded)
+        loaded = None if why else loaded
     if loaded is not None:
         return loaded
+    what = f"{key['kind']} set for {key['task']} (n={key.get('n')})"
     if not build_missing:
-        raise CacheMiss(f"{key['kind']} set for {key['task']} (n={key.get('n')}) is not in {path.parent}")
+        raise CacheMiss(f"{what}: {path} {why}" if why else f"{what} is not in {path.parent}")
+    if why:
+        sys.stderr.write(f"cwh_envs: the cache file {path} {why}: building it again\n")
     result = build()
+    arrays = {name: getattr(result, name) for name in names}
     path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.NamedTemporaryFile(
         dir=path.parent, prefix=path.stem, suffix=".tmp", delete=False
     ) as handle:
-        np.savez(handle, key=np.array(text), **{name: getattr(result, name) for name in names})
+        np.savez(handle, key=np.array(text), checksum=np.array(_checksum(arrays)), **arrays)
     os.replace(handle.name, path)
     return result
 
@@ -423,16 +547,31 @@ def _cached(cache_dir, key: dict, build, build_missing: bool, kind: type = Demon
 _FIELDS = tuple(field.name for field in dataclasses.fields(Demonstrations))
 
 
+def _checksum(arrays: dict[str, np.ndarray]) -> str:
+    """sha256 of named arrays: dtype, shape and bytes of each, in order."""
+    digest = hashlib.sha256()
+    for name, array in arrays.items():
+        array = np.ascontiguousarray(array)
+        digest.update(f"{name}:{array.dtype.str}:{array.shape}".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
 def _load(path: Path, text: str, kind: type, names: list[str]):
+    """(the cached set, None), or (None, why it cannot be used: None when there is no such file)."""
     if not path.exists():
-        return None
+        return None, None
     try:
         with np.load(path, allow_pickle=False) as stored:
             if str(stored["key"]) != text:
-                return None
-            return kind(*(stored[name] for name in names))
-    except (OSError, ValueError, KeyError):
-        return None  # unreadable or foreign file: rebuild and overwrite it
+                return None, "was written for another set"
+            arrays = {name: stored[name] for name in names}
+            checksum = str(stored["checksum"]) if "checksum" in stored.files else None
+    except (OSError, ValueError, KeyError) as err:
+        return None, f"cannot be read ({type(err).__name__}: {err})"
+    if checksum != _checksum(arrays):
+        return None, "does not match the checksum of its arrays (changed or damaged)"
+    return kind(**arrays), None
 
 
 def _cache_key(kind: str, task: str, problem, **arguments) -> dict:
@@ -456,6 +595,7 @@ def _builder_source_digest() -> str:
     """
     digest = hashlib.sha256()
     for module in (
+        splits,
         dynamics,
         problems,
         sampling,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cwh_envs import datasets
+from cwh_envs import datasets, splits
 
 
 def load_train(family_dir: str | Path):
@@ -63,6 +63,20 @@ class DataNeeds:
     # docking: other keep-out standoffs the demonstrations may keep (a family's EXPERT_MARGIN); each
     # adds a training pool and a recovery pool built with the problem at that margin
     expert_margins: tuple[float, ...] = ()
+
+
+def split_ids(needs: DataNeeds) -> dict[str, str]:
+    """What the family's family.json pins as ``split_ids``: the identity of the first ``n_eval`` (and
+    ``n_test``) starts of the shipped splits of its problem (cwh_envs.splits). A problem with no
+    shipped split has none to pin: a ValueError says so."""
+    sizes = {"search": needs.n_eval, **({"test": needs.n_test} if needs.n_test is not None else {})}
+    ids = {}
+    for split, n in sizes.items():
+        shipped = splits.shipped_split(needs.task, needs.problem, split)
+        if shipped is None:
+            raise ValueError(f"no {split} split ships for this family's {needs.task} problem")
+        ids[split] = splits.split_identity(*shipped.first(n))
+    return ids
 
 
 def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
