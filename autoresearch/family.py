@@ -29,7 +29,7 @@ from autoresearch.editable import EditableError, read_region
 from autoresearch.journal import JournalError
 from autoresearch.ledger import LEDGER_FILE, Ledger
 from autoresearch.space import NUMERIC_TYPES, SearchSpace, SpaceError, ValidationError
-from autoresearch.splits import ScoredRun, Split
+from autoresearch.splits import SPLIT_IDS, ScoredRun, Split, recorded_split_ids, split_mismatches, split_parts
 
 REQUIRED_FILES = ("program.md", "program_blind.md", "train.py", "family.json", "prepare.py")
 TEXT_FILES = ("program.md", "program_blind.md", "train.py")  # read as UTF-8 text by the loop
@@ -111,6 +111,20 @@ class Family:
     def has_test_split(self) -> bool:
         """Whether train.py scores on a sealed test split with ``--eval-split test``."""
         return self.registry.get("test_split") is True
+
+    @property
+    def split_ids(self) -> dict[str, str]:
+        """family.json's ``split_ids``: the identity of the data each split is scored on (empty when
+        the family pins none); see :func:`autoresearch.splits.split_mismatches`."""
+        return dict(self.registry.get(SPLIT_IDS) or {})
+
+    def off_split(
+        self, final_metric: dict[str, Any] | None, splits: tuple[Split, ...] = tuple(Split)
+    ) -> list[str]:
+        """Where a run's FINAL_METRIC says it was scored on data other than the family pins (one line
+        per split of ``splits`` it holds metrics for); empty when it was not."""
+        held = tuple(s for s in splits if s in split_parts(final_metric or {}))
+        return split_mismatches(recorded_split_ids(final_metric), self.split_ids, held)
 
     @property
     def axes(self) -> tuple[str, ...]:
@@ -330,6 +344,15 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
         bad("feasibility_field", "must be a field name or null")
     if not isinstance(registry.get("test_split", False), bool):
         bad("test_split", "must be true or false")
+    ids = registry.get(SPLIT_IDS)
+    if ids is not None and not (
+        isinstance(ids, dict)
+        and set(ids) <= {split.value for split in Split}
+        and all(isinstance(v, str) and v for v in ids.values())
+    ):
+        bad(SPLIT_IDS, f"must be null or an object mapping split names ({', '.join(Split)}) to identities")
+    if isinstance(ids, dict) and Split.TEST.value in ids and registry.get("test_split") is not True:
+        bad(SPLIT_IDS, "pins a test split, but the family declares no test_split")
     constraints = registry.get("constraints_field")
     if constraints is not None and (not isinstance(constraints, str) or not constraints):
         bad("constraints_field", "must be a field name or null")

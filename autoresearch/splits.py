@@ -6,6 +6,12 @@ FINAL_METRIC object keeps the primary metric of the split it was scored on at th
 split's metrics under ``splits``. :meth:`ScoredRun.read` reads that shape and the two it replaced:
 a FINAL_METRIC object written before ``splits`` (a test run kept the search split's metrics under
 ``search_split``) and one of a family that prints no ``splits`` (its top is the search split).
+
+A split's **identity** is whatever the family says names its data (for cwh_envs, a hash of the
+starts). A FINAL_METRIC object may carry ``split_ids`` (split name -> identity: what the run was
+scored on) and family.json may pin ``split_ids`` (what the family's numbers are scored on):
+:func:`split_mismatches` says where the two disagree, so that no run, noise measurement or random
+arm scored on other data is compared with the family's numbers without a word.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from dataclasses import dataclass
 from enum import Enum
 from typing import Any
 
+SPLIT_IDS = "split_ids"  # FINAL_METRIC's and family.json's field: split name -> the split's identity
 LEGACY_SEARCH = "search_split"  # where a test run's record kept the search split before ``splits``
 
 
@@ -81,3 +88,28 @@ class ScoredRun:
     def from_json(cls, data: Mapping[str, Any]) -> ScoredRun:
         scores = {split: Score(**data[split.value]) for split in Split if data.get(split.value)}
         return cls(scores[Split.SEARCH], scores.get(Split.TEST))
+
+
+def recorded_split_ids(final_metric: Mapping[str, Any] | None) -> dict[str, str]:
+    """The identity of each split a FINAL_METRIC object says it was scored on (empty: it says none)."""
+    ids = (final_metric or {}).get(SPLIT_IDS)
+    return {k: v for k, v in ids.items() if isinstance(v, str)} if isinstance(ids, dict) else {}
+
+
+def split_mismatches(
+    recorded: Mapping[str, str], pinned: Mapping[str, str], splits: tuple[Split, ...] = tuple(Split)
+) -> list[str]:
+    """One line per split of ``splits`` on which a run's ``recorded`` identities (what it was scored
+    on) are not the family's ``pinned`` ones; empty when they agree or the family pins none."""
+    found = []
+    for split in splits:
+        want, got = pinned.get(split.value), recorded.get(split.value)
+        if want is None or got == want:
+            continue
+        said = (
+            "records no split identity (scored before splits were pinned)"
+            if got is None
+            else f"was scored on {got}"
+        )
+        found.append(f"{split} split: {said}; the family pins {want}")
+    return found

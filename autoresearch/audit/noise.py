@@ -27,7 +27,7 @@ from autoresearch.execution.executors import Executor
 from autoresearch.family import Family
 from autoresearch.ledger import LEDGER_FILE
 from autoresearch.provenance import family_hashes
-from autoresearch.splits import Score, Split
+from autoresearch.splits import SPLIT_IDS, Score, Split, recorded_split_ids, split_mismatches
 
 STEP = "noise"
 PINNED_FILES = ("train.py", "prepare.py")  # the baseline's code and data; program.md is prose
@@ -73,6 +73,8 @@ def measure_noise(
             f"seed noise: only {len(ok)} of {k} baseline runs succeeded (K >= 2 needed); "
             f"failures: {failed}; re-run to retry them"
         )
+    # run_trials refused any run scored off the family's pinned splits, so these agree with its pins
+    split_ids = recorded_split_ids(ok[0].final_metric)
     search = _spread([r.scores.search for r in ok])
     sealed = {Split.TEST.value: _spread([r.scores.test for r in ok])} if family.has_test_split else {}
     noise = {
@@ -83,6 +85,7 @@ def measure_noise(
         "runs_dir": portable_path(root),
         "failed": failed,
         "pinned": pins(family),
+        **({SPLIT_IDS: split_ids} if split_ids else {}),
         **({"time_budget": budget} if budget is not None else {}),
         **sealed,
     }
@@ -121,13 +124,20 @@ def pins(family: Family) -> dict[str, Any]:
 
 
 def stale_noise(family: Family) -> list[str]:
-    """How the family differs from what its seed noise was measured on, one line each; empty when
-    it does not, and when the noise predates pinning (nothing to compare)."""
-    pinned = (family.seed_noise or {}).get("pinned")
-    if not isinstance(pinned, dict):
-        return []
-    now, files = pins(family), pinned.get("files") or {}
+    """How the family differs from what its seed noise was measured on, one line each: its files and
+    baseline (unless the noise predates pinning them), and the splits it was scored on when the family
+    pins them (noise that records none was scored before they were pinned)."""
+    noise = family.seed_noise or {}
+    measured_on = (Split.SEARCH, Split.TEST) if family.has_test_split else (Split.SEARCH,)
     found = [
+        f"seed noise on the {line}"
+        for line in split_mismatches(noise.get(SPLIT_IDS) or {}, family.split_ids, measured_on)
+    ]
+    pinned = noise.get("pinned")
+    if not isinstance(pinned, dict):
+        return found
+    now, files = pins(family), pinned.get("files") or {}
+    found += [
         f"{name}: sha256 {files.get(name)} -> {sha}"
         for name, sha in now["files"].items()
         if files.get(name) != sha

@@ -160,6 +160,13 @@ def run_random_arm(
     view = PlainView(family.metric)
     Orchestrator(family, proposer, arm.root, loop, view=view, executor=executor).run()
     state = arm.state(family)
+    off = [(r.run_id, why) for r in state.records if r.ran and (why := family.off_split(r.final_metric))]
+    if off:  # e.g. an arm resumed from draws scored on another build of a split
+        raise AuditError(
+            f"the random arm in {arm.root} holds {len(off)} draw(s) scored on data other than family "
+            f"{family.name!r} pins ({off[0][0]}: {'; '.join(off[0][1])}); no verdict compares it with the "
+            f"campaign: move it aside and run `autoresearch random --campaign {campaign.root}` again"
+        )
     part = summarize(campaign, arm.root, state, matched_range, ranges, seed, space)
     if split is Split.TEST:  # the paper's verdict stays beside the one on the sealed split
         part["search_verdict"] = {"verdict": part["verdict"], "units": part["units"]}

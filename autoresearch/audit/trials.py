@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from autoresearch.audit.inputs import audit_split
+from autoresearch.audit.inputs import AuditError, audit_split
 from autoresearch.audit.progress import TrialProgress
 from autoresearch.campaign.audit_log import StepLog, TrialRow
 from autoresearch.execution.executors import Executor
@@ -78,16 +78,34 @@ def run_trial(executor: Executor, spec: RunSpec, trial: Trial) -> TrialRow:
     return trial_row(family, trial, executor.run(spec), spec.split)
 
 
-def _logged(trials: Sequence[Trial], log: StepLog, split: Split) -> dict[str, TrialRow]:
+def _logged(family: Family, trials: Sequence[Trial], log: StepLog, split: Split) -> dict[str, TrialRow]:
     """The rows of ``log`` that already answer ``trials``, by key. A row counts only for the
-    configuration and split it ran: a key reused for another configuration (e.g. a re-run after the
-    promoted configuration changed) runs again."""
+    configuration and split it ran, and only if it was scored on the data the family pins: a key
+    reused for another configuration (e.g. a re-run after the promoted configuration changed), or a
+    row scored on another build of a split, runs again."""
     wanted = {t.key: t.config for t in trials}
     return {
         row.key: row
         for row in log.read()
-        if row.ok and row.key in wanted and row.config == wanted[row.key] and row.split is split
+        if row.ok
+        and row.key in wanted
+        and row.config == wanted[row.key]
+        and row.split is split
+        and not family.off_split(row.final_metric)
     }
+
+
+def refuse_off_split(family: Family, rows: Sequence[TrialRow]) -> None:
+    """Raise AuditError when a finished run was scored on data other than the family pins: this
+    machine's data are not the family's, and no gate may compare the two."""
+    off = {row.key: why for row in rows if row.ok and (why := family.off_split(row.final_metric))}
+    if off:
+        key, why = next(iter(off.items()))
+        raise AuditError(
+            f"{len(off)} run(s) were scored on data other than family {family.name!r} pins ({key}: "
+            f"{'; '.join(why)}); the data sets on this machine are not the family's: check them with "
+            f"`python prepare.py --check` in {family.path}, then run the same command again"
+        )
 
 
 def run_trials(
@@ -115,7 +133,7 @@ def run_trials(
         raise ValueError("run_trials: trial keys must be unique")
     root.mkdir(parents=True, exist_ok=True)
     log, split = StepLog(log_path), split or audit_split(family)
-    done = _logged(trials, log, split)
+    done = _logged(family, trials, log, split)
     todo = [t for t in trials if t.key not in done]
     runs_log, root = (runs_log or root / "runs.jsonl").resolve(), root.resolve()
 
@@ -139,5 +157,6 @@ def run_trials(
             progress.advance(row)
 
         fresh = executor.map(lambda trial: run_trial(executor, spec(trial), trial), todo, on_result=logged)
+    refuse_off_split(family, fresh)
     done.update({row.key: row for row in fresh})
     return [done[key] for key in keys]

@@ -22,6 +22,7 @@ without a record (:mod:`autoresearch.loop.recovery`).
 from __future__ import annotations
 
 import json
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -403,6 +404,15 @@ class Orchestrator:
     def _finish_run(self, intent: Intent, result: RunResult) -> None:
         record = self.writer.append_run(intent, result)
         self._shown(record)
+        off = self.family.off_split(record.final_metric) if record.ran else []
+        if off:  # its record says so too: the FINAL_METRIC object it keeps names the data it scored on
+            print(
+                f"[it {record.iteration}] warning: run {record.run_id} was scored on data other than family "
+                f"{self.family.name!r} pins ({'; '.join(off)}); its numbers are not comparable with the "
+                "family's: check the data with `python prepare.py --check` in the family directory",
+                file=sys.stderr,
+                flush=True,
+            )
         if self.stopper is not None:
             self.stopper.finish(record)
         self.proposer.tell(self._run_outcome(record))

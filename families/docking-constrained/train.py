@@ -903,6 +903,9 @@ def main() -> None:
     obs, actions, datasets = load_training_set(config)
     search = evaluation_set(TASK, N_EVAL, problem=PROBLEM, split="search")
     datasets["search_split"] = search.content_key
+    split_ids = {
+        "search": search.starts_key
+    }  # the starts scored on (cwh_envs.splits), as autoresearch compares them
     first = search.take(N_PROGRESS)
 
     def report(epoch: int, policy: Policy) -> None:
@@ -929,6 +932,7 @@ def main() -> None:
     if args.eval_split == "test":
         test = evaluation_set(TASK, N_TEST, problem=PROBLEM, split="test")
         datasets["test_split"] = test.content_key
+        split_ids["test"] = test.starts_key
         splits["test"] = evaluate(policy, test, cbf)
     eval_seconds = time.perf_counter() - started
 
@@ -947,6 +951,7 @@ def main() -> None:
         **({"time_budget": budget.seconds, "budget_exhausted": budget.exhausted} if budget.seconds else {}),
         "seed": args.seed,
         "datasets": datasets,
+        "split_ids": split_ids,
         "config": config,
     }
     args.out.mkdir(parents=True, exist_ok=True)
