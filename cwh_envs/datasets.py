@@ -288,7 +288,7 @@ def _solve_starts(task, starts, goals, problem, label) -> Demonstrations:
     if unsolved:
         i, why = unsolved[0]
         raise splits.SplitError(
-            f"{label}: the expert cannot solve start {i} ({np.array2string(starts[i], precision=6)}) on this "
+            f"{label}: the expert cannot solve start {i} ({splits.describe_start(starts[i])}) on this "
             f"machine ({why}), though it did when the split was made"
         )
     progress.close()

@@ -56,6 +56,11 @@ def split_identity(starts, goals) -> str:
     return digest.hexdigest()[:16]
 
 
+def describe_start(state) -> str:
+    """A start on one line, for an error message: [x, y, z, vx, vy, vz] to 6 digits."""
+    return "[" + ", ".join(f"{float(v):.6g}" for v in state) + "]"
+
+
 def problem_fields(problem) -> dict:
     """A problem as the manifest writes it: its type and every constant, tuples as lists."""
     fields = {k: list(v) if isinstance(v, tuple) else v for k, v in problem.as_dict().items()}
@@ -99,7 +104,7 @@ class ShippedSplit:
             return None
         i = int(np.flatnonzero(off)[0])
         return (
-            f"the expert solved here from start {i} of {self.label} ({np.array2string(self.starts[i], precision=6)})"
+            f"the expert solved here from start {i} of {self.label} ({describe_start(self.starts[i])})"
             f" spends energy {energy[i]:.9g}, the shipped reference is {reference[i]:.9g} (relative"
             f" tolerance {ENERGY_RTOL:g}); {int(off.sum())} start(s) disagree. The fuel ratios of this"
             " machine would not be the benchmark's: report it with the output of `pip freeze`"
