@@ -42,9 +42,10 @@ PACKAGES = (
 )
 FAMILY_FILES = ("train.py", "family.json", "program.md", "program_blind.md", "prepare.py")
 AUDIT_WRITES = ("seed_noise", "best")  # family.json fields the audit writes (or wrote): left out of its hash
-# family.json fields only the audit reads, to judge runs (autoresearch.audit.tails): they change no run,
-# so they are left out of the hash too, and declaring them leaves every campaign of the family resumable
-AUDIT_READS = ("tails",)
+# family.json fields only the audit reads, to judge runs (autoresearch.audit.tails; split_ids, the data
+# a run must have been scored on, checked run by run: autoresearch.splits): they change no run, so they
+# are left out of the hash too, and declaring them leaves every campaign of the family resumable
+AUDIT_READS = ("tails", "split_ids")
 GIT_TIMEOUT_S = 10.0
 MAX_UNSEEN_CHOICES = 8  # categorical choices a campaign did not see: up to this many, every subset is tried
 

@@ -67,12 +67,14 @@ def run_trial(executor: Executor, spec: RunSpec, trial: Trial) -> TrialRow:
         and earlier.ok
         and earlier.final_metric.get("config") == trial.config
         and earlier.final_metric.get("eval_split", Split.SEARCH.value) == spec.split.value
+        and not family.off_split(earlier.final_metric)
     ):
         return trial_row(family, trial, earlier, spec.split)
     if run_dir.exists():  # a failed or interrupted attempt: its directory is used once
         stop_orphaned_run(run_dir)  # an orphan of a killed audit, wherever it moved: it must not write twice
         logged = logged_run(spec)
-        if logged is not None and logged.ok:  # it finished before it was stopped: its line is the result
+        if logged is not None and logged.ok and not family.off_split(logged.final_metric):
+            # it finished before it was stopped: its line is the result
             return trial_row(family, trial, logged, spec.split)
         shutil.rmtree(run_dir)
     return trial_row(family, trial, executor.run(spec), spec.split)

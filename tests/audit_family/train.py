@@ -19,6 +19,8 @@ AUDIT_SLEEP_S (environment): every run sleeps this long first (an audit made slo
 AUDIT_TEST_SHIFT (environment), e.g. 'WIDE=true:-0.5' or 'GAP=1.0,WIDE=false:0.6': a run whose
 config has every NAME=VALUE listed (VALUE read as JSON) scores DELTA more on the sealed split only
 (a test split that ranks recipes differently from the search split).
+AUDIT_SPLIT_IDS (environment), e.g. '{"search": "a", "test": "b"}': the record's split_ids, the
+data it says it was scored on (autoresearch.splits; none when unset).
 
 --eval-split test (a copy whose family.json sets test_split): the sealed split's loss is the search
 loss plus TEST_OFFSET, so every designed effect holds on it unchanged, and a value of at least
@@ -116,6 +118,8 @@ def main() -> int:
         "seed": args.seed,
         "config": CONFIG,
     }
+    if os.environ.get("AUDIT_SPLIT_IDS"):
+        record["split_ids"] = json.loads(os.environ["AUDIT_SPLIT_IDS"])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "policy.json").write_text(json.dumps(CONFIG))
