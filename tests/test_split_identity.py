@@ -113,3 +113,21 @@ def test_the_loop_says_when_a_run_was_scored_off_the_pinned_split(tmp_path, monk
     records = [json.loads(line) for line in (root / "proposals.jsonl").read_text().splitlines()]
     ran = [r for r in records if r["status"] == "ran"]
     assert ran and all(r["final_metric"]["split_ids"] == {"search": "starts-elsewhere"} for r in ran)
+
+
+def test_check_family_lists_the_campaigns_scored_on_other_data(tmp_path, monkeypatch, capsys):
+    family = pinned_family(tmp_path)
+    results = tmp_path / "results"
+    monkeypatch.setenv("AUDIT_SPLIT_IDS", json.dumps(PINNED))
+    run_campaign(family, results / "same", ScriptedProposer([P1]), iterations=2)
+    monkeypatch.setenv("AUDIT_SPLIT_IDS", json.dumps({"search": "starts-elsewhere"}))
+    run_campaign(family, results / "elsewhere", ScriptedProposer([P1]), iterations=2)
+    monkeypatch.delenv("AUDIT_SPLIT_IDS")
+    run_campaign(family, results / "older", ScriptedProposer([P1]), iterations=1)
+    capsys.readouterr()
+    main(["check", "--family", str(family.path), "--campaigns", str(results)])
+    out = capsys.readouterr().out
+    assert f"2 of 3 campaign(s) under {results} hold runs scored on data other than" in out
+    assert f"  {results / 'elsewhere'}: 2 run(s): search split: was scored on starts-elsewhere" in out
+    assert f"  {results / 'older'}: 1 run(s): search split: records no split identity" in out
+    assert f"{results / 'same'}:" not in out

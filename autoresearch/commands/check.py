@@ -11,9 +11,10 @@ from autoresearch.campaign import CampaignError
 from autoresearch.campaign.check import check_campaign
 from autoresearch.campaign.group import is_group, repeat_dirs
 from autoresearch.campaign.lock import holder, not_a_directory
+from autoresearch.campaign.scored_on import family_campaigns, off_split_runs
 from autoresearch.commands import SUMMARIES
 from autoresearch.execution.runner import run_prepare_check
-from autoresearch.family import FamilyError, family_problems, find_family_dir
+from autoresearch.family import Family, FamilyError, family_problems, find_family_dir
 from autoresearch.journal import JournalError
 
 
@@ -36,6 +37,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     which = p.add_mutually_exclusive_group(required=True)
     which.add_argument("--campaign", type=Path, help="campaign (or repeats group) directory")
     which.add_argument("--family", help="family directory (or the name of one under families/)")
+    p.add_argument(
+        "--campaigns",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="DIR",
+        help="with --family: the directories whose campaigns of the family are checked for runs scored on "
+        "data other than family.json's split_ids pin (default: results and runs in the working directory)",
+    )
     p.add_argument(
         "--strict-provenance",
         action="store_true",
@@ -71,7 +81,28 @@ def _check_one(root: Path, strict: bool) -> bool:
     return not result.problems and not (strict and differences)
 
 
-def _check_family(given: str) -> int:
+def _scored_elsewhere(path: Path, under: list[Path]) -> None:
+    """Print each campaign of the family under ``under`` some of whose runs were scored on data other
+    than the family pins: its numbers are not the family's (another build of a split, or older)."""
+    try:
+        family = Family.load(path)
+    except FamilyError:
+        return  # the contract problems above say why
+    if not family.split_ids:
+        return
+    campaigns = family_campaigns(family, under)
+    elsewhere = {root: reasons for root in campaigns if (reasons := off_split_runs(root, family))}
+    where = ", ".join(str(d) for d in under)
+    print(
+        f"{path}: {len(elsewhere)} of {len(campaigns)} campaign(s) under {where} hold runs scored on data "
+        "other than family.json's split_ids pin" + (":" if elsewhere else "")
+    )
+    for root, reasons in elsewhere.items():
+        said = "; ".join(f"{count} run(s): {reason}" for reason, count in sorted(reasons.items()))
+        print(f"  {root}: {said}")
+
+
+def _check_family(given: str, under: list[Path] | None = None) -> int:
     try:
         path = find_family_dir(given)
     except FamilyError as err:
@@ -84,12 +115,13 @@ def _check_family(given: str) -> int:
     print(f"{path}: clean" if not problems else f"{path}: {len(problems)} problem(s)")
     for problem in problems:  # prepare.py's own output may name its problems a line each
         print("  " + problem.replace("\n", "\n    "))
+    _scored_elsewhere(path, under if under is not None else [Path("results"), Path("runs")])
     return 1 if problems else 0
 
 
 def run(args: argparse.Namespace) -> int:
     if args.family is not None:
-        return _check_family(args.family)
+        return _check_family(args.family, args.campaigns)
     root = args.campaign
     problem = not_a_directory(root)
     if problem:
