@@ -519,6 +519,8 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
         "split": "test",
         "n_starts": len(per_seed[0]["terminal_distance"]),
         "split_starts": task.train.N_TEST,  # the whole split's size (n_starts may be its first few)
+        # the identity of the starts flown (cwh_envs.splits): the same on every machine that flies them
+        "split_id": task.held_out.take(len(per_seed[0]["terminal_distance"])).starts_key,
         "metric": float(np.mean(values)),
         "success_rate": mean("success_rate"),
         "violation_rate": None

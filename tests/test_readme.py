@@ -64,8 +64,11 @@ def test_a_familys_missing_extra_ends_check_and_loop_as_the_readme_says(tmp_path
     extra = "this family trains with torch, which is not installed: pip install 'cwh-autoresearch[families]'"
     family = ROOT / "families" / "rendezvous"
     cli = [sys.executable, "-m", "autoresearch"]
-    check = subprocess.run(
-        [*cli, "check", "--family", family], capture_output=True, text=True, env=without_torch
+    check = subprocess.run(  # --campaigns: none of the committed campaigns (their splits are listed too)
+        [*cli, "check", "--family", family, "--campaigns", tmp_path],
+        capture_output=True,
+        text=True,
+        env=without_torch,
     )
     assert check.returncode == 1 and "Traceback" not in check.stderr
     assert check.stdout.splitlines() == [

@@ -91,6 +91,8 @@ def _scored_elsewhere(path: Path, under: list[Path]) -> None:
     if not family.split_ids:
         return
     campaigns = family_campaigns(family, under)
+    if not campaigns:
+        return
     elsewhere = {root: reasons for root in campaigns if (reasons := off_split_runs(root, family))}
     where = ", ".join(str(d) for d in under)
     print(
