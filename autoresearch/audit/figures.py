@@ -85,7 +85,7 @@ def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] 
                 lw=2,
                 label=f"{arm.label}: best so far",
             )
-    if noise:
+    if noise and "mean" in noise:  # the search split's (a noise known only on the test split draws none)
         ax.axhline(noise["mean"], color="gray", lw=1, ls=":", label=f"baseline over {noise['k']} seeds")
         ax.axhspan(noise["mean"] - noise["std"], noise["mean"] + noise["std"], color="gray", alpha=0.15)
     if family.target is not None:
@@ -107,13 +107,35 @@ def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] 
     return fig
 
 
-def recipe_figure(records: list[Record], family: Family, out: Path) -> None:
-    """How each parameter moved: every run's value (dots) and the running best's value (line)."""
+def recorded_params(records: list[Record], family: Family) -> list[str]:
+    """The parameters the campaign's runs recorded, in the family's order: a parameter the family
+    declared after the campaign ran (a family that only grew) is in none of its configurations."""
+    recorded = {name for r in records if r.config for name in r.config}
+    return [name for name in family.space.names if name in recorded]
+
+
+def searched_choices(registry: dict[str, Any] | None, name: str) -> list[Any] | None:
+    """The choices of categorical ``name`` in the campaign's copy of family.json (the space it searched),
+    or None: a choice the family added since was never one of the campaign's."""
+    spec = ((registry or {}).get("search_space") or {}).get(name)
+    choices = spec.get("choices") if isinstance(spec, dict) and spec.get("type") == "categorical" else None
+    return list(choices) if isinstance(choices, list) and choices else None
+
+
+def recipe_figure(
+    records: list[Record], family: Family, out: Path, registry: dict[str, Any] | None = None
+) -> None:
+    """How each parameter the campaign recorded moved: every run's value (dots) and the running
+    best's value (line). A run without a parameter (recorded before the family declared it) has no
+    dot for it, and no value is made up for it. A categorical's levels are those the campaign
+    searched (``registry``: its copy of family.json), else the family's."""
     ran = [r for r in records if r.ran]
-    names = family.space.names
-    ncols = min(3, len(names))
-    nrows = math.ceil(len(names) / ncols)
+    names = recorded_params(ran, family)
+    ncols = max(1, min(3, len(names)))
+    nrows = max(1, math.ceil(len(names) / ncols))
     fig = Figure(figsize=(4 * ncols, 2.3 * nrows))
+    if not names:
+        fig.text(0.5, 0.5, "no run of the campaign has a result yet", ha="center", va="center")
     best, best_configs = None, []
     for r in ran:
         best = best_feasible([best, r], family.direction)
@@ -121,15 +143,21 @@ def recipe_figure(records: list[Record], family: Family, out: Path) -> None:
     for i, name in enumerate(names, start=1):
         ax = fig.add_subplot(nrows, ncols, i)
         param = family.space.params[name]
-        levels = list(param.choices) if param.type == "categorical" else [False, True]
+        has = [r for r in ran if name in r.config]
+        if param.type == "categorical":
+            levels = searched_choices(registry, name) or list(param.choices)
+        else:
+            levels = [False, True]
+        if param.type in ("categorical", "bool"):  # a value recorded outside the declared ones keeps its own
+            levels += [v for v in dict.fromkeys(r.config[name] for r in has) if v not in levels]
 
         def y(value, param=param, levels=levels):
             return levels.index(value) if param.type in ("categorical", "bool") else value
 
         ax.scatter(
-            [r.iteration for r in ran], [y(r.config[name]) for r in ran], s=10, color="gray", alpha=0.5
+            [r.iteration for r in has], [y(r.config[name]) for r in has], s=10, color="gray", alpha=0.5
         )
-        line = [(it, y(cfg[name])) for it, cfg in best_configs if cfg is not None]
+        line = [(it, y(cfg[name])) for it, cfg in best_configs if cfg is not None and name in cfg]
         if line:
             ax.step(*zip(*line, strict=True), where="post", color=COLORS["agent"], lw=2)
         if param.type in ("categorical", "bool"):

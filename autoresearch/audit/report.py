@@ -66,6 +66,36 @@ def _both(entry: dict[str, Any], gated: str, split: str) -> list[str]:
     return [gated if on == split else _on(entry, on) for on in ("search", "test")]
 
 
+def shown_noise(audit: dict[str, Any], family: Family) -> dict[str, Any] | None:
+    """The seed noise the report shows (the table's reference row, the search figure's band, the verdict
+    note), as the audit recorded it, never the family's as it is now (measured again since, it would
+    change a committed report's numbers): the audit's noise step, else the noise verification gated
+    against, which it recorded on its gated split only (mean, sd and k), marked ``gated_only``. The
+    family's noise only before verification ran."""
+    if audit.get("noise"):
+        return audit["noise"]
+    verify = audit.get("verify") or {}
+    gated = verify.get("noise")
+    if not gated:
+        return family.seed_noise
+    if verify.get("split", "search") == "test":
+        return {"k": gated["k"], "test": dict(gated), "gated_only": "test"}
+    return {**gated, "gated_only": "search"}
+
+
+def noise_note(noise: dict[str, Any] | None) -> str | None:
+    """A sentence when the reference row shows only what verification recorded (:func:`shown_noise`)."""
+    split = (noise or {}).get("gated_only")
+    if not split:
+        return None
+    missing = "its search-split part and feasible count were" if split == "test" else "its feasible count was"
+    return (
+        f"The seed-noise row is what verification recorded of the noise it gated against: its mean, sd and k on "
+        f"the {split} split. {missing[0].upper() + missing[1:]} not recorded with this audit, and the family's "
+        "noise as it is now may be a later measurement (`autoresearch audit` records the whole measurement)."
+    )
+
+
 def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: list[PlottedArm]) -> list[str]:
     """The paper's Tables 2 and 3: one row per arm, the reseeded headline last. With a sealed test
     split, a column per split: the search split (selected on) and the test split (gated on)."""
@@ -85,13 +115,13 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
             else f"| {name} | {search} | {feasible} | {verdict} |"
         )
 
-    noise = audit.get("noise") or family.seed_noise
+    noise = shown_noise(audit, family)
     if noise:
         feas = f"{noise['n_feasible']} of {noise['k']}" if "n_feasible" in noise else "n/a"
         test = noise.get("test")
         row(
             f"Seed noise (n={noise['k']})",
-            f"{_fmt(noise['mean'])} ± {_fmt(noise['std'], 2)}",
+            f"{_fmt(noise['mean'])} ± {_fmt(noise['std'], 2)}" if "mean" in noise else "—",
             f"{_fmt(test['mean'])} ± {_fmt(test['std'], 2)}" if test else "—",
             feas,
             "reference",
@@ -285,9 +315,13 @@ def _shown(verify: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def _changes(config: dict[str, Any], family: Family) -> str:
+    """The edits of ``config`` from the family's baseline, among the parameters it records (one recorded
+    before the family declared a parameter has none of it: that parameter is not an edit)."""
     baseline = family.baseline_config
     return (
-        ", ".join(f"{k}={config[k]!r}" for k in family.space.names if config[k] != baseline[k])
+        ", ".join(
+            f"{k}={config[k]!r}" for k in family.space.names if k in config and config[k] != baseline[k]
+        )
         or "(baseline)"
     )
 
@@ -492,9 +526,9 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
     out_dir.mkdir(parents=True, exist_ok=True)
     agent = PlottedArm(f"agent ({campaign.meta.proposer})", COLORS["agent"], campaign.records)
     extra = [load_arm(Path(d), None, COLORS["other"]) for d in arms]
-    noise = audit.get("noise") or family.seed_noise
+    noise = shown_noise(audit, family)
     search_figure([agent, *random_arms(audit), *extra], family, noise, out_dir / "search.png")
-    recipe_figure(campaign.records, family, out_dir / "recipe.png")
+    recipe_figure(campaign.records, family, out_dir / "recipe.png", campaign.store.registry())
     hook_note = family_hook(campaign, audit, out_dir / "trajectories.png")
     exported = None
     if (family.path / "export.py").is_file():  # the optional export hook: the audited policy as a file
@@ -521,6 +555,7 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
         "every reseed. A pruned recipe is *published* when its own re-verification passes the same gate and "
         "it keeps any target the full recipe reached, and *promoted* in the full recipe's place when it is "
         'also the more reproducible of the two (docs/audit.md, "Leave-one-out pruning").',
+        *(["", note] if (note := noise_note(noise)) else []),
         *(["", note] if (note := mismatch_note(campaign, audit)) else []),
         *(["", note] if (note := verdict_note([agent, *random_arms(audit)], noise)) else []),
         "",
