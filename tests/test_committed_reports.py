@@ -163,3 +163,23 @@ def test_a_report_reads_only_what_its_campaign_recorded(tmp_path):
     assert main(["report", "--campaign", str(root)]) == 0
     assert (root / "report.md").read_bytes() == before["report.md"]
     assert png_size(root / "recipe.png") == png_size_of(before["recipe.png"])
+
+
+def test_prune_and_the_matched_arm_read_a_grown_familys_old_runs(tmp_path):
+    """A run recorded before its family grew lacks the new parameter: it held the baseline value, so
+    it edits nothing there (pruning's edit list) and spans only that value (the matched arm's range)."""
+    from autoresearch.audit.inputs import changed_params
+    from autoresearch.audit.random_arm import matched_ranges
+
+    family = copy_family(AUDIT_FAMILY, tmp_path / "family")
+    root = run_campaign(family, tmp_path / "campaign", ScriptedProposer([P1]), iterations=2)
+    registry = read_json(family.path / "family.json")
+    registry["search_space"]["MORE_EPOCHS"] = {"type": "int", "low": 0, "high": 9, "axis": "training_budget"}
+    registry["baseline"]["config"]["MORE_EPOCHS"] = 3
+    (family.path / "family.json").write_text(json.dumps(registry, indent=2), encoding="utf-8")
+    train = family.path / "train.py"
+    text = train.read_text(encoding="utf-8")
+    train.write_text(text.replace("WIDE = False", "WIDE = False\nMORE_EPOCHS = 3", 1), encoding="utf-8")
+    campaign = open_campaign(root)
+    assert changed_params(campaign.family, P1) == list(P1)
+    assert matched_ranges(campaign)["MORE_EPOCHS"] == {"low": 3, "high": 3}

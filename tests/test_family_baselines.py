@@ -38,8 +38,10 @@ def test_the_baseline_at_seed_1_scores_its_committed_sealed_split_metric(name, t
     committed = noise["test"]["values"][noise["seeds"].index(SEED)]
     assert noise["split_ids"] == registry["split_ids"]  # measured on the splits the family pins
     result = subprocess.run(
-        [sys.executable, "train.py", "--seed", str(SEED), "--eval-split", "test"]
-        + ["--runs-log", str(tmp_path / "runs.jsonl"), "--out", str(tmp_path / "out")],
+        [
+            *(sys.executable, "train.py", "--seed", str(SEED), "--eval-split", "test"),
+            *("--runs-log", str(tmp_path / "runs.jsonl"), "--out", str(tmp_path / "out")),
+        ],
         cwd=family,
         env={**os.environ, "OMP_NUM_THREADS": "1"},
         capture_output=True,

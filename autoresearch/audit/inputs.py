@@ -28,9 +28,10 @@ def config_id(config: dict[str, Any]) -> str:
 
 
 def changed_params(family: Family, config: dict[str, Any]) -> list[str]:
-    """The parameters ``config`` edits relative to the family defaults, in family.json order."""
+    """The parameters ``config`` edits relative to the family defaults, in family.json order. A parameter
+    the config lacks was declared since it ran, and held its baseline value (the family only grew)."""
     baseline = family.baseline_config
-    return [name for name in family.space.names if config[name] != baseline[name]]
+    return [name for name in family.space.names if config.get(name, baseline[name]) != baseline[name]]
 
 
 def audit_split(family: Family) -> Split:

@@ -65,7 +65,9 @@ def matched_ranges(campaign: AuditedCampaign) -> dict[str, dict[str, Any]]:
     for name, param in family.space.params.items():
         if param.axis != MATCHED_AXIS:
             continue
-        used = [r.config[name] for r in campaign.records if r.status.started_a_run]
+        # a parameter declared since a run held its baseline value there (the family only grew)
+        held = family.baseline_config[name]
+        used = [r.config.get(name, held) for r in campaign.records if r.status.started_a_run]
         if param.type in NUMERIC_TYPES:
             ranges[name] = {"low": min(used), "high": max(used)}
         else:
