@@ -30,6 +30,7 @@ SHIPPED = {
     ("docking/search", 0): "2531516038398d8b",
     ("docking/test", 0): "992af5aaaa354400",
     ("docking-constrained/search", 0): "851dfe1a4c614ba7",
+    ("docking-constrained/test", 0): "e0d45611f81d3533",
 }
 
 
@@ -99,16 +100,20 @@ def test_each_family_scores_on_a_shipped_split_and_pins_its_identity():
         shipped = {
             split: splits.shipped_split(needs.task, needs.problem, split) for split in ("search", "test")
         }
-        if shipped["test"] is None:  # constrained docking's sealed split: see the note in SHIPPED
-            assert family == "docking-constrained" and "split_ids" not in registry
-            continue
         assert len(shipped["search"]) >= needs.n_eval and len(shipped["test"]) >= needs.n_test
         assert registry["split_ids"] == split_ids(needs), family
 
 
 @pytest.mark.parametrize(
     "name",
-    ["rendezvous/search", "rendezvous/test", "docking/search", "docking/test", "docking-constrained/search"],
+    [
+        "rendezvous/search",
+        "rendezvous/test",
+        "docking/search",
+        "docking/test",
+        "docking-constrained/search",
+        "docking-constrained/test",
+    ],
 )
 def test_a_screen_from_scratch_draws_the_shipped_starts(name):
     """What a second machine would build: the first starts of each split screened here from their
