@@ -607,6 +607,8 @@ def markdown(rows: list[dict]) -> str:
                 notes.append(f"dispersed: {m['infeasible_resolves']} of {m['solves']} re-solves failed")
             if r["strict_feasible"] is not None:
                 notes.append(f"strict-feasible {sum(r['strict_feasible'])}/{len(r['strict_feasible'])}")
+            if "split_id" not in r:  # flown before rows recorded it (issue 57): results/splits/README.md
+                notes.append("split not recorded (flown before issue 57)")
             lines.append(
                 f"| {r['controller']} | {metric} | {r['success_rate']:.1%} | {rates} | "
                 f"{fmt(r['p99_terminal_distance'])} / {fmt(r['max_terminal_distance'])} | {fmt(r['delta_v_ratio'])} | "

@@ -21,9 +21,11 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def main(paths: list[str]) -> int:
-    committed = {
-        (r["task"], r["controller"]): r for r in json.loads((ROOT / "results/leaderboard.json").read_text())
-    }
+    write = "--write" in paths
+    paths = [p for p in paths if p != "--write"]
+    board = ROOT / "results/leaderboard.json"
+    rows = json.loads(board.read_text())
+    committed = {(r["task"], r["controller"]): r for r in rows}
     print("| task | controller | starts | committed metric | on the shipped split | same to the bit |")
     print("|---|---|---:|---:|---:|---|")
     for path in paths:
@@ -35,10 +37,18 @@ def main(paths: list[str]) -> int:
                 old["metric"] == row["metric"]
                 and old["max_terminal_distance"] == row["max_terminal_distance"]
             )
+            if same and write:
+                old["split_id"] = row["split_id"]
             print(
                 f"| {row['task']} | {row['controller']} | {row['n_starts']} | {old['metric']:.10g} | "
                 f"{row['metric']:.10g} | {'yes' if same else 'no: another build'} |"
             )
+    if write:
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+        from leaderboard import markdown
+
+        board.write_text(json.dumps(rows, indent=1, allow_nan=False) + "\n")
+        (ROOT / "results/leaderboard.md").write_text(markdown(rows), encoding="utf-8")
     return 0
 
 
