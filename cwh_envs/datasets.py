@@ -142,6 +142,11 @@ class CacheMiss(LookupError):
     """A set asked for with ``build=False`` is not in the cache."""
 
 
+class CacheMismatch(CacheMiss):
+    """A set asked for with ``build=False`` is in the cache, but its file fails its checks (its
+    arrays' checksum, or what it must hold): it would be rebuilt, never used."""
+
+
 def demonstrations(
     task: str, n: int, seed: int = 0, problem=None, cache_dir=None, *, build: bool = True
 ) -> Demonstrations:
@@ -238,7 +243,7 @@ def shipped_split_label(task: str, n: int, problem=None, *, split: str = "search
 def _shipped_set(task, n, problem, shipped: splits.ShippedSplit, cache_dir, build) -> Demonstrations:
     """The first ``n`` starts of a shipped split with the expert's trajectories from them, solved here
     once (and cached), each start's energy checked against the shipped one."""
-    starts, goals = shipped.first(n)
+    starts, goals = (np.array(part) for part in shipped.first(n))  # the caller's own, writable
     key = _cache_key(
         "evaluation", task, problem, n=n, split=shipped.split, starts=splits.split_identity(starts, goals)
     )
@@ -530,7 +535,9 @@ def _cached(cache_dir, key: dict, build, build_missing: bool, kind: type = Demon
         return loaded
     what = f"{key['kind']} set for {key['task']} (n={key.get('n')})"
     if not build_missing:
-        raise CacheMiss(f"{what}: {path} {why}" if why else f"{what} is not in {path.parent}")
+        if why:
+            raise CacheMismatch(f"{what}: {path} {why}")
+        raise CacheMiss(f"{what} is not in {path.parent}")
     if why:
         sys.stderr.write(f"cwh_envs: the cache file {path} {why}: building it again\n")
     result = build()

@@ -150,6 +150,8 @@ def check(needs: DataNeeds) -> int:
             starts, goals, demos = load(build=False)
             reason = inconsistency(needs, expected, starts, goals, demos)
             loaded[description] = starts
+        except datasets.CacheMismatch as err:  # present, but it fails its checks: rebuilt by --warm-cache
+            reason = f"fails its checks ({err})"
         except datasets.CacheMiss:
             reason = "missing"
         if reason:

@@ -230,3 +230,20 @@ def test_a_problem_of_ones_own_is_screened_here_with_a_warning(tmp_path):
     assert held.starts.shape == (4, 6)
     assert datasets.shipped_split_label("rendezvous", 4, problem) is None
     assert datasets.shipped_split_label("docking", 128, DockingProblem()) == "docking/search-v0, first 128"
+
+
+def test_prepare_check_names_a_cache_file_that_fails_its_checks(tmp_path, monkeypatch, capsys):
+    from cwh_envs.prepare import DataNeeds, check, warm
+
+    monkeypatch.setenv("CWH_ENVS_CACHE", str(tmp_path))
+    needs = DataNeeds(
+        "rendezvous", RendezvousProblem(), pool_demos=4, data_seed=0, n_eval=8, obs_dim=7, n_test=8
+    )
+    assert warm(needs) == 0
+    (path,) = [p for p in tmp_path.glob("evaluation-rendezvous-*.npz") if "test" in str(np.load(p)["key"])]
+    rewrite(path, lambda arrays: arrays.__setitem__("starts", arrays["starts"] / 2), checksum=False)
+    capsys.readouterr()
+    assert check(needs) == 1
+    err = capsys.readouterr().err
+    assert "rendezvous test split" in err and "fails its checks" in err and "checksum" in err
+    assert warm(needs) == 0  # --warm-cache builds it again

@@ -131,3 +131,16 @@ def test_check_family_lists_the_campaigns_scored_on_other_data(tmp_path, monkeyp
     assert f"  {results / 'elsewhere'}: 2 run(s): search split: was scored on starts-elsewhere" in out
     assert f"  {results / 'older'}: 1 run(s): search split: records no split identity" in out
     assert f"{results / 'same'}:" not in out
+
+
+def test_a_random_arm_scored_off_the_pinned_split_is_refused(tmp_path, monkeypatch, capsys):
+    family = pinned_family(tmp_path)
+    monkeypatch.setenv("AUDIT_SPLIT_IDS", json.dumps(PINNED))
+    root = run_campaign(family, tmp_path / "campaign", ScriptedProposer([P1]), iterations=2)
+    monkeypatch.setenv("AUDIT_SPLIT_IDS", json.dumps({"search": "starts-elsewhere"}))
+    capsys.readouterr()
+    assert main(["random", "--budget-from", str(root), "--count", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "holds 2 draw(s) scored on data other than family" in err
+    assert "was scored on starts-elsewhere; the family pins starts-a" in err
+    assert f"`autoresearch random --budget-from {root}` again" in err

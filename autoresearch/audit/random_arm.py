@@ -167,7 +167,7 @@ def run_random_arm(
         raise AuditError(
             f"the random arm in {arm.root} holds {len(off)} draw(s) scored on data other than family "
             f"{family.name!r} pins ({off[0][0]}: {'; '.join(off[0][1])}); no verdict compares it with the "
-            f"campaign: move it aside and run `autoresearch random --campaign {campaign.root}` again"
+            f"campaign: move it aside and run `autoresearch random --budget-from {campaign.root}` again"
         )
     part = summarize(campaign, arm.root, state, matched_range, ranges, seed, space)
     if split is Split.TEST:  # the paper's verdict stays beside the one on the sealed split
