@@ -16,9 +16,11 @@ import numpy as np
 from gymnasium import spaces
 
 from cwh_envs import dynamics
+from cwh_envs.actions import check_actions, real_array
 from cwh_envs.cbf import safe_actions
 from cwh_envs.cbf_multi import safe_actions_multi
 from cwh_envs.constraints import CONE_TOLERANCE, SPEED_TOLERANCE, cone_terms, path_constrained, speed_margin
+from cwh_envs.dispersions import EpisodeDispersions
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
@@ -127,16 +129,6 @@ def check_goals(goals: Any, problem: DockingProblem, batch: int | None = None) -
     return g
 
 
-def check_actions(actions: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """Normalised actions clipped to the box; NaN, a complex value or a wrong shape is a caller error."""
-    a = _real_array(actions, "action", shape)
-    if a.shape != shape:
-        raise ValueError(f"action must have shape {shape}, got {a.shape}")
-    if np.isnan(a).any():
-        raise ValueError("action contains NaN")
-    return np.clip(a, -1.0, 1.0)
-
-
 def filter_actions(
     actions: np.ndarray, states: np.ndarray, problem: DockingProblem, margin: float, goals: np.ndarray
 ):
@@ -172,25 +164,8 @@ def check_margin(margin: Any) -> float:
     return float(margin)
 
 
-def _real_array(value: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
-    """``value`` as a new float64 array. A complex value is refused: numpy would drop its imaginary
-    part with no more than a warning."""
-    try:
-        raw = np.asarray(value)
-    except (TypeError, ValueError) as e:  # e.g. a ragged nesting
-        raise ValueError(f"{name} must be a numeric array of shape {shape}") from e
-    if raw.dtype.kind == "c" or (
-        raw.dtype.kind == "O" and any(isinstance(v, complex | np.complexfloating) for v in raw.flat)
-    ):
-        raise ValueError(f"{name} must be real, got a complex value")
-    try:
-        return raw.astype(np.float64)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{name} must be a numeric array of shape {shape}") from e
-
-
 def _finite_array(value: Any, name: str, shape: tuple[int, ...]) -> np.ndarray:
-    x = _real_array(value, name, shape)
+    x = real_array(value, name, shape)
     if x.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {x.shape}")
     if not np.all(np.isfinite(x)):
@@ -387,8 +362,6 @@ class CWHEnv(gym.Env):
                 raise ValueError(
                     f"dispersions must be a dict of standard deviations or None, got {dispersions!r}"
                 )
-            from cwh_envs.dispersions import EpisodeDispersions  # it imports this module
-
             self._dispersed = EpisodeDispersions(dispersions, self.problem.horizon)
 
     @property

@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 import gymnasium as gym
 import numpy as np
 
-from cwh_envs.core import check_actions
+from cwh_envs.actions import check_actions
 
 DISPERSION_STREAM = 0xD15  # the second word of the dispersions' seed: a stream apart from the env's
 SPREADS = ("thrust_scale", "misalignment_deg", "mass", "nav_position", "nav_velocity")

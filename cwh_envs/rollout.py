@@ -18,13 +18,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cwh_envs.actions import check_actions
 from cwh_envs.constraints import path_constrained
 from cwh_envs.core import (
     DockingCore,
     DockingReward,
     RendezvousCore,
     RendezvousReward,
-    check_actions,
     check_goals,
     check_margin,
     check_states,

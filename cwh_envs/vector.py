@@ -33,11 +33,11 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from cwh_envs.actions import check_actions
 from cwh_envs.core import (
     DockingCore,
     RendezvousCore,
     action_space,
-    check_actions,
     check_goals,
     check_margin,
     check_states,

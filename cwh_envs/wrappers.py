@@ -7,8 +7,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from cwh_envs.actions import check_actions
 from cwh_envs.cbf_multi import BARRIERS
-from cwh_envs.core import check_actions, check_margin, filter_actions
+from cwh_envs.core import check_margin, filter_actions
 from cwh_envs.docking import CWHDockKOZEnv
 
 
