@@ -1,7 +1,8 @@
 """The evaluation splits, and what a finished run scored on each (docs/family-contract.md).
 
-A family's train.py scores a run on the search split (the 128 starts every search selects on) and,
-when the audit asks for ``--eval-split test``, on the sealed test split too, from one training. Its
+A family's train.py scores a run on the search split (the starts every search selects on: 512 in
+the shipped rendezvous and docking families, 128 in constrained docking) and, when the audit asks
+for ``--eval-split test``, on the sealed test split too, from one training. Its
 FINAL_METRIC object keeps the primary metric of the split it was scored on at the top and each
 split's metrics under ``splits``. :meth:`ScoredRun.read` reads that shape and the two it replaced:
 a FINAL_METRIC object written before ``splits`` (a test run kept the search split's metrics under
