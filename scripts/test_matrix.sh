@@ -17,7 +17,7 @@ SURFACE=(
   dispersions start_pool datasets controllers mpc sb3_adapter
   anthropic_proposer openai_proposer llm_loop llm_cli prompting pricing retry
   keyfree_proposers keyfree_space sampling space optuna_journal early_stop warm_start
-  report render audit_stats compare_stats journal editable splits install readme
+  report render audit_stats compare_stats journal editable splits install readme shipped_splits
 )
 MODULES=()
 for name in "${SURFACE[@]}"; do MODULES+=("tests/test_$name.py"); done
