@@ -247,3 +247,23 @@ def test_prepare_check_names_a_cache_file_that_fails_its_checks(tmp_path, monkey
     err = capsys.readouterr().err
     assert "rendezvous test split" in err and "fails its checks" in err and "checksum" in err
     assert warm(needs) == 0  # --warm-cache builds it again
+
+
+def test_a_stale_cache_file_is_rebuilt(tmp_path, capsys):
+    """A file under the right name whose key is another build's (older code, other constants) is not
+    the set asked for: it is built again, with a line that says so."""
+    cache = tmp_path / "cache"
+    honest = datasets.demonstrations("rendezvous", 4, cache_dir=cache)
+    (path,) = cache.glob("demonstrations-*.npz")
+
+    def older(arrays):
+        key = json.loads(str(arrays["key"]))
+        arrays["key"] = np.array(json.dumps({**key, "code": "an older builder"}, sort_keys=True))
+
+    rewrite(path, older, checksum=True)
+    capsys.readouterr()
+    with pytest.raises(CacheMiss, match="was written for another set"):
+        datasets.demonstrations("rendezvous", 4, cache_dir=cache, build=False)
+    again = datasets.demonstrations("rendezvous", 4, cache_dir=cache)
+    assert "was written for another set: building it again" in capsys.readouterr().err
+    np.testing.assert_array_equal(again.actions, honest.actions)
