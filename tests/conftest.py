@@ -15,6 +15,7 @@ import os
 import re
 import shutil
 import tempfile
+from pathlib import Path
 
 import pytest
 from extras import EXTRAS, missing_extras, needs_module, required, skip_or_fail
@@ -63,6 +64,33 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "ray_instance" in item.fixturenames or any("ray" in m.args for m in item.iter_markers("needs")):
             item.add_marker(pytest.mark.xdist_group("ray"))
+
+
+_CHECKOUT_RUNS = Path(__file__).resolve().parents[1] / "runs"
+
+
+def _checkout_runs() -> set[str]:
+    return set(os.listdir(_CHECKOUT_RUNS)) if _CHECKOUT_RUNS.is_dir() else set()
+
+
+def pytest_sessionstart(session):
+    if not hasattr(session.config, "workerinput"):  # the controller (or a run without xdist)
+        session.config._runs_before = _checkout_runs()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    # A test writes under its tmp_path, never into the checkout: a run directory the suite leaves in
+    # runs/ (as `measure_noise` without out_dir once left runs/noise-audit-toy) fails the session.
+    before = getattr(session.config, "_runs_before", None)
+    left = sorted(_checkout_runs() - before) if before is not None else []
+    if left:
+        reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+        if reporter is not None:
+            reporter.ensure_newline()
+            reporter.write_line(
+                f"the tests left {left} in {_CHECKOUT_RUNS}: write under tmp_path instead", red=True
+            )
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 def pytest_configure(config):

@@ -110,7 +110,7 @@ def test_a_best_certified_under_limits_is_replaced_only_under_limits_as_tight(tm
     registry["protocols"] = {"capped": {"limits": {"loss": 5000.0}}, "tight": {"limits": {"loss": 100.0}}}
     (family.path / "family.json").write_text(json.dumps(registry))
     family = Family.load(family.path)
-    measure_noise(family, SERIAL, k=4)
+    measure_noise(family, SERIAL, k=4, out_dir=tmp_path / "noise")  # not runs/ of the working directory
 
     def certify(name, protocol=None):
         root = run_campaign(family, tmp_path / name, ScriptedProposer([P1]), iterations=2, protocol=protocol)
