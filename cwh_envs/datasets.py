@@ -50,6 +50,7 @@ from cwh_envs import constraints, dynamics, experts, observations, problems, sam
 from cwh_envs.experts import Infeasible, solve_docking, solve_rendezvous, solve_rendezvous_many
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
+from cwh_envs.rollout import control_effort
 from cwh_envs.sampling import (
     docking_candidates,
     iter_docking_starts,
@@ -92,12 +93,7 @@ class Demonstrations:
     @property
     def content_key(self) -> str:
         """sha256 (16 hex digits) of every array: names the data a run trained or was scored on."""
-        digest = hashlib.sha256()
-        for name in _FIELDS:
-            array = np.ascontiguousarray(getattr(self, name))
-            digest.update(f"{name}:{array.dtype.str}:{array.shape}".encode())
-            digest.update(array.tobytes())
-        return digest.hexdigest()[:16]
+        return _checksum({name: getattr(self, name) for name in _FIELDS})[:16]
 
     @property
     def starts_key(self) -> str:
@@ -251,8 +247,7 @@ def _shipped_set(task, n, problem, shipped: splits.ShippedSplit, cache_dir, buil
     def mismatch(held: Demonstrations) -> str | None:
         if not (np.array_equal(held.starts, starts) and np.array_equal(held.goals, goals)):
             return f"its starts are not those of the shipped split {shipped.label}"
-        energy = np.einsum("nki,nki->n", *(held.trajectory_thrust(),) * 2) * problem.dt
-        return shipped.energy_mismatch(energy)
+        return shipped.energy_mismatch(control_effort(held.trajectory_thrust(), problem)[0])
 
     def solve_shipped() -> Demonstrations:
         held = _solve_starts(
@@ -582,13 +577,12 @@ def _load(path: Path, text: str, kind: type, names: list[str]):
 
 
 def _cache_key(kind: str, task: str, problem, **arguments) -> dict:
-    fields = {name: list(v) if isinstance(v, tuple) else v for name, v in problem.as_dict().items()}
     return {
         "format": FORMAT_VERSION,
         "code": _builder_source_digest(),
         "kind": kind,
         "task": task,
-        "problem": {"type": type(problem).__name__, **fields},
+        "problem": splits.problem_fields(problem),  # as the shipped splits' manifest writes it
         **{name: list(v) if isinstance(v, tuple) else v for name, v in arguments.items()},
     }
 
