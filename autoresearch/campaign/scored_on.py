@@ -12,21 +12,22 @@ import json
 from collections import Counter
 from pathlib import Path
 
+from autoresearch.campaign.meta import CampaignMeta
+from autoresearch.campaign.paths import CampaignError, CampaignPaths
 from autoresearch.family import Family
 
-RUNS_LOG = "runs.jsonl"
-CAMPAIGN_FILE = "campaign.json"  # autoresearch.campaign.paths.CampaignPaths.campaign_json
+_NAMES = CampaignPaths(Path())  # the file names of a campaign directory, and of each audit step's runs
 
 
 def family_campaigns(family: Family, under: list[Path]) -> list[Path]:
     """Campaign directories of ``family`` (by the name their campaign.json records) under ``under``."""
     found = []
     for top in under:
-        for meta in sorted(top.rglob(CAMPAIGN_FILE)) if top.is_dir() else []:
+        for meta in sorted(top.rglob(_NAMES.campaign_json.name)) if top.is_dir() else []:
             try:
-                name = json.loads(meta.read_text(encoding="utf-8")).get("family_name")
-            except (OSError, ValueError, AttributeError):
-                continue
+                name = CampaignMeta.read(meta.parent).family_name
+            except CampaignError:
+                continue  # unreadable: `check --campaign` reports it
             if name == family.name:
                 found.append(meta.parent)
     return found
@@ -38,7 +39,7 @@ def off_split_runs(root: Path, family: Family) -> Counter[str]:
     reasons: Counter[str] = Counter()
     if not family.split_ids:
         return reasons
-    for log in sorted(root.rglob(RUNS_LOG)):
+    for log in sorted(root.rglob(_NAMES.runs_log.name)):
         for line in log.read_text(encoding="utf-8", errors="replace").splitlines():
             try:
                 record = json.loads(line)
