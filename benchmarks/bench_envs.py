@@ -82,7 +82,7 @@ def bench_vector(env_id: str, num_envs: int, mode: str, seconds: float, **kwargs
 def safety_episodes(policy, cbf_margin: float | None, head_on: bool, num_envs: int = 512, seed: int = 0):
     """(fraction of episodes with a step inside R, least clearance [m], infeasible filter steps)."""
     env = gym.make_vec(
-        "CWHDockKOZ-v0", num_envs=num_envs, vectorization_mode="vector_entry_point", cbf_margin=cbf_margin
+        "CWHDockKOZ-v1", num_envs=num_envs, vectorization_mode="vector_entry_point", cbf_margin=cbf_margin
     )
     obs, _ = env.reset(seed=seed)
     if head_on:
@@ -154,7 +154,7 @@ def main() -> None:
     )
     print("|---|---|---:|---:|---:|---:|---:|")
     pool = {"start_pool": args.start_pool}
-    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v0"):
+    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v1"):
         prepare_pool(env_id, args.start_pool)
         sync = bench_vector(env_id, SYNC_ENVS, "sync", args.seconds)
         rows = [
@@ -173,7 +173,7 @@ def main() -> None:
         for n in NATIVE_ENVS:
             rate = bench_vector(env_id, n, "vector_entry_point", args.seconds, **pool)
             rows.append((f"native vector x{n}, start_pool={args.start_pool}", rate, sync))
-        if env_id == "CWHDockKOZ-v0":  # the filtered rows compare with SyncVectorEnv of filtered envs
+        if env_id == "CWHDockKOZ-v1":  # the filtered rows compare with SyncVectorEnv of filtered envs
             sync_cbf = bench_vector(env_id, SYNC_ENVS, "sync", args.seconds, wrappers=(CBFSafetyFilter,))
             rows.append((f"SyncVectorEnv x{SYNC_ENVS}, CBFSafetyFilter", sync_cbf, sync_cbf))
             for n in NATIVE_ENVS:

@@ -35,8 +35,8 @@ from cwh_envs.sb3 import NativeVecEnv
 
 PROBLEMS = {  # env id, CBF on
     "rendezvous": ("cwh_envs:CWHRendezvous-v0", False),
-    "docking": ("cwh_envs:CWHDockKOZ-v0", False),
-    "docking+cbf": ("cwh_envs:CWHDockKOZ-v0", True),
+    "docking": ("cwh_envs:CWHDockKOZ-v1", False),
+    "docking+cbf": ("cwh_envs:CWHDockKOZ-v1", True),
 }
 CBF_MARGIN = 0.5  # CBFSafetyFilter's default: the problem's margin
 PPO_PARAMS = dict(

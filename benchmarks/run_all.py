@@ -50,7 +50,7 @@ from autoresearch.proposers import DEFAULT_SPACE
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking")
-ENV_IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v0")
+ENV_IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v1")
 NATIVE = NATIVE_ENVS[0]
 BASELINE_TIMEOUT_S, TUNED_TIMEOUT_S = 300.0, 1800.0
 # Committed groups of repeats (loop --repeats) per family: (directory, prefix of the arm groups).

@@ -19,7 +19,14 @@ from cwh_envs import dynamics
 from cwh_envs.actions import check_actions, real_array
 from cwh_envs.cbf import safe_actions
 from cwh_envs.cbf_multi import safe_actions_multi
-from cwh_envs.constraints import CONE_TOLERANCE, SPEED_TOLERANCE, cone_terms, path_constrained, speed_margin
+from cwh_envs.constraints import (
+    CONE_TOLERANCE,
+    SPEED_TOLERANCE,
+    cone_terms,
+    path_constrained,
+    speed_margin,
+    violation_depths,
+)
 from cwh_envs.dispersions import EpisodeDispersions
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
@@ -264,6 +271,8 @@ class DockingCore(RendezvousCore):
         ]
         self.broken = {name: np.zeros(num_envs, dtype=np.int64) for name in self.extra}
         self.least = {name: np.full(num_envs, np.inf) for name in self.extra}
+        # The deepest violation of each constraint over x_1 .. x_H (cwh_envs.constraints.violation_depths).
+        self.depth = {name: np.zeros(num_envs) for name in ("keep_out", *self.extra)}
 
     def start(self, rows: Any, states: np.ndarray, goals: np.ndarray | None = None) -> None:
         super().start(rows, states, goals)
@@ -272,6 +281,8 @@ class DockingCore(RendezvousCore):
         for name in self.extra:
             self.broken[name][rows] = 0
             self.least[name][rows] = np.inf
+        for depth in self.depth.values():
+            depth[rows] = 0.0
 
     def observe(self) -> np.ndarray:
         return docking_observation(self.states, self.goals, self.steps, self.problem.horizon)
@@ -283,7 +294,9 @@ class DockingCore(RendezvousCore):
         if self.problem.speed_limit is not None:
             info["speed_margin"] = speed_margin(self.states, self.goals, self.problem.speed_limit)
         if self.problem.approach_cone is not None:
-            region, _, angle = cone_terms(self.states, self.goals, self.problem.approach_cone)
+            region, _, angle = cone_terms(
+                self.states, self.goals, self.problem.approach_cone, self.problem.capture_radius
+            )
             info["in_cone_region"], info["cone_angle"] = region, angle
         return info
 
@@ -293,7 +306,9 @@ class DockingCore(RendezvousCore):
         if "speed" in self.extra:
             out["speed"] = (info["speed_margin"] < -SPEED_TOLERANCE, info["speed_margin"])
         if "cone" in self.extra:
-            region, slack, angle = cone_terms(self.states, self.goals, self.problem.approach_cone)
+            region, slack, angle = cone_terms(
+                self.states, self.goals, self.problem.approach_cone, self.problem.capture_radius
+            )
             margin = np.where(region, self.problem.approach_cone[0] - angle, np.inf)
             out["cone"] = (region & (slack < -CONE_TOLERANCE), margin)
         return out
@@ -301,6 +316,8 @@ class DockingCore(RendezvousCore):
     def _accumulate(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         self.violations += info["in_koz"]
         np.minimum(self.min_clearance, info["clearance"], out=self.min_clearance)
+        for name, depth in violation_depths(self.states, self.goals, self.problem).items():
+            np.maximum(self.depth[name], depth, out=self.depth[name])
         costs = {"cost_keep_out": info["in_koz"].astype(np.float64)}
         for name, (broken, margin) in self._broken(info).items():
             self.broken[name] += broken
@@ -324,6 +341,8 @@ class DockingCore(RendezvousCore):
         final["is_success"] &= self.violations == 0
         final["violation_rate"] = self.violations / self.problem.horizon
         final["min_clearance"] = self.min_clearance.copy()
+        for name, depth in self.depth.items():
+            final[f"{name}_depth"] = depth.copy()
         for name in self.extra:
             final["is_success"] &= self.broken[name] == 0
             final[f"{name}_violation_rate"] = self.broken[name] / self.problem.horizon
@@ -368,6 +387,14 @@ class CWHEnv(gym.Env):
     def state(self) -> np.ndarray:
         """The current state [x, y, z, vx, vy, vz] in metres and metres per second (a copy)."""
         return self._core.states[0].copy()
+
+    @property
+    def navigation_state(self) -> np.ndarray:
+        """The state as navigation estimates it (6,): the true state plus this step's noise under the
+        ``dispersions`` option, else the state itself. A CBF filter on top acts on it."""
+        if self._dispersed is None or self._dispersed.draw is None:
+            return self.state
+        return self._dispersed.estimate(self.state, int(self._core.steps[0]))
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)

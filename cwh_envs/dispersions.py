@@ -1,7 +1,7 @@
 """Monte Carlo dispersions of the plant and the navigation, per episode: the way GNC engineers judge
 a guidance law off the nominal model. Off unless a dispersion is given, in three places that draw
 alike: the :class:`Dispersions` wrapper, the envs' ``dispersions=`` option
-(``gym.make("CWHDockKOZ-v0", dispersions={...})``) and ``cwh_envs.rollout.fly(dispersions=...)``.
+(``gym.make("CWHDockKOZ-v1", dispersions={...})``) and ``cwh_envs.rollout.fly(dispersions=...)``.
 
 Each episode draws, from a generator seeded by the episode's ``reset(seed=...)``:
 
@@ -16,6 +16,13 @@ An episode seeded ``s`` draws from ``numpy.random.default_rng([s, DISPERSION_STR
 order: the thrust scale, the mass scale, the misalignment angle, its axis (3), then the navigation
 noise of all H + 1 observations (position (H + 1, 3), then velocity (H + 1, 3)). So the wrapper, the
 env option and ``fly`` (start ``i`` seeded ``dispersion_seed + i``) fly the same dispersions.
+
+**What sees what.** The policy, the CBF filter (:class:`cwh_envs.CBFSafetyFilter`, ``fly``'s
+``cbf_margin``) and MPC act on the navigation estimate, the true state plus that step's noise, as
+flight software's run-time assurance does; the env scores the true state. The estimate is
+``navigation_state`` (float64) on the env and on this wrapper. The filter fed the true state instead
+(``CBFSafetyFilter(..., sees="truth")``, ``fly(..., filter_sees="truth")``) is kept for comparison:
+it flatters every dispersed row.
 
 The plant errors are applied to the normalised action before the env clips it to its box: a
 thrust error beyond full throttle saturates, as a real thruster would. The dispersions come from a
@@ -34,6 +41,7 @@ import numpy as np
 from cwh_envs.actions import check_actions
 
 DISPERSION_STREAM = 0xD15  # the second word of the dispersions' seed: a stream apart from the env's
+FILTER_SEES = ("estimate", "truth")  # what a CBF filter under dispersions acts on (module docstring)
 SPREADS = ("thrust_scale", "misalignment_deg", "mass", "nav_position", "nav_velocity")
 
 
@@ -112,6 +120,10 @@ class EpisodeDispersions:
     def observe(self, obs: np.ndarray, step: int) -> np.ndarray:
         return noisy(obs, self.draw.nav[step])
 
+    def estimate(self, state: np.ndarray, step: int) -> np.ndarray:
+        """The navigation estimate (6,) of the true ``state`` at ``step``, float64: what is observed."""
+        return np.asarray(state, dtype=np.float64) + self.draw.nav[step]
+
 
 class Dispersions(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Per-episode plant dispersions and per-step navigation noise (module docstring).
@@ -142,6 +154,13 @@ class Dispersions(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.Wrapper.__init__(self, env)
         self.spreads = self._episode.spreads
         self._step = 0
+
+    @property
+    def navigation_state(self) -> np.ndarray:
+        """The state as navigation estimates it this step (6,), m and m/s: what the observation shows,
+        in float64. A CBF filter on top acts on it (module docstring)."""
+        inner = self.env.get_wrapper_attr("navigation_state")
+        return self._episode.estimate(inner, min(self._step, self._episode.horizon))
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         obs, info = self.env.reset(seed=seed, options=options)

@@ -1,4 +1,4 @@
-"""CWHDockKOZ-v0: docking just outside a spherical keep-out zone (paper Sec. 4.3)."""
+"""CWHDockKOZ-v1: docking just outside a spherical keep-out zone (paper Sec. 4.3)."""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cwh_envs.constraints import check_approach_cone, check_speed_limit
+from cwh_envs.constraints import CAPTURE_RADIUS, check_approach_cone, check_capture_radius, check_speed_limit
 from cwh_envs.dynamics import DISCRETIZATIONS, MASS, MEAN_MOTION, TIME_STEP, cwh_matrices
 
 # The longest episode, in steps. 10**5 steps of the default 10 s are about 180 orbits, over 400
@@ -88,11 +88,15 @@ class DockingProblem(_Orbit):
     # Optional path constraints (cwh_envs.constraints); None, the default, is the paper's problem.
     speed_limit: tuple[float, float] | None = None  # (v0 m/s, v1 1/s): ||v|| <= v0 + v1 ||r - g||
     approach_cone: tuple[float, float] | None = None  # (half angle deg, radius m) about g / ||g|| at g
+    # m: the corridor's half-width at the port, as the env scores the cone (CWHDockKOZ-v0 registers
+    # 0, the apex on the port). Scoring only: the experts plan the corridor to the port.
+    capture_radius: float = CAPTURE_RADIUS
 
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "speed_limit", check_speed_limit(self.speed_limit))
         object.__setattr__(self, "approach_cone", check_approach_cone(self.approach_cone))
+        object.__setattr__(self, "capture_radius", check_capture_radius(self.capture_radius, self.approach_cone))
         for name in ("koz_radius", "goal_radius", "success_distance", "success_speed"):
             _positive(name, getattr(self, name))
         if not (_real(self.margin) and self.margin >= 0):
@@ -117,6 +121,11 @@ class DockingProblem(_Orbit):
             )
         if not (0.0 <= self.pierce_depth < self.koz_radius + self.margin):
             raise ValueError(f"pierce_depth must lie in [0, koz_radius + margin), got {self.pierce_depth!r}")
+
+
+# Fields that change how a flight is scored, never which starts are screened or what the expert
+# plans: they stay out of a problem's identity in the shipped splits and the dataset caches.
+SCORING_ONLY = frozenset({"capture_radius"})
 
 
 def _real(value) -> bool:

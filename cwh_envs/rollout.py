@@ -30,7 +30,7 @@ from cwh_envs.core import (
     check_states,
     filter_actions,
 )
-from cwh_envs.dispersions import check_spreads, draw_episode, episode_rng, noisy
+from cwh_envs.dispersions import FILTER_SEES, check_spreads, draw_episode, episode_rng, noisy
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -46,7 +46,10 @@ class Flight:
     (N,) [m], and, with the filter, ``cbf_active`` / ``cbf_infeasible`` (N, H) bool and, with a speed
     limit or a cone, ``cbf_dropped`` (N, H, 3) bool (:data:`cwh_envs.cbf_multi.BARRIERS` order).
     ``speed_violation_rate`` / ``cone_violation_rate`` (N,): the share of steps 1..H breaking the
-    speed limit / the cone, on a problem that has it (else None).
+    speed limit / the cone, on a problem that has it (else None). ``keep_out_depth`` (N,) [m],
+    ``speed_depth`` (N,) [m/s] and ``cone_depth`` (N,) [m]: the deepest violation of each constraint
+    over steps 1..H (0 where kept; :func:`cwh_envs.constraints.violation_depths`), on a problem that
+    has it (else None).
     """
 
     states: np.ndarray
@@ -62,6 +65,9 @@ class Flight:
     cbf_dropped: np.ndarray | None = None
     speed_violation_rate: np.ndarray | None = None
     cone_violation_rate: np.ndarray | None = None
+    keep_out_depth: np.ndarray | None = None
+    speed_depth: np.ndarray | None = None
+    cone_depth: np.ndarray | None = None
 
 
 def fly(
@@ -73,6 +79,7 @@ def fly(
     cbf_margin: float | None = None,
     dispersions: dict | None = None,
     dispersion_seed: int = 0,
+    filter_sees: str = "estimate",
 ) -> Flight:
     """Fly ``policy`` from every start (N, 6) at once (docking: to ``goals`` (N, 3)) for H steps.
 
@@ -81,8 +88,11 @@ def fly(
 
     ``dispersions`` (standard deviations, :mod:`cwh_envs.dispersions`) flies start ``i`` under the
     draw of seed ``dispersion_seed + i``, as ``CBFSafetyFilter(Dispersions(env))`` reset with that
-    seed would: the policy sees the navigation noise, the filter the true state, and the plant's
-    errors act on the filtered action before the box clip; ``thrust`` is then the effective thrust.
+    seed would: the policy and the filter act on the navigation estimate (the true state plus that
+    step's noise), the env scores the true state, and the plant's errors act on the filtered action
+    before the box clip; ``thrust`` is then the effective thrust. ``filter_sees="truth"`` feeds the
+    filter the true state instead, the flight before flight software's view was modelled (it
+    flatters the filter; kept for comparison).
     """
     docking = isinstance(problem, DockingProblem)
     if not docking and not isinstance(problem, RendezvousProblem):
@@ -104,6 +114,8 @@ def fly(
             raise ValueError("rendezvous takes no goals and no CBF filter (it has no keep-out)")
         core = RendezvousCore(problem, RendezvousReward(), n)
     margin = None if cbf_margin is None else check_margin(cbf_margin)
+    if filter_sees not in FILTER_SEES:
+        raise ValueError(f"filter_sees must be one of {FILTER_SEES}, got {filter_sees!r}")
     horizon = problem.horizon
     gains = nav = None
     if dispersions is not None:
@@ -123,7 +135,8 @@ def fly(
         observed = core.observe() if nav is None else noisy(core.observe(), nav[:, k])
         actions = check_actions(policy(observed), (n, 3))
         if margin is not None:
-            actions, result = filter_actions(actions, core.states, problem, margin, core.goals)
+            seen = core.states if nav is None or filter_sees == "truth" else core.states + nav[:, k]
+            actions, result = filter_actions(actions, seen, problem, margin, core.goals)
             active[:, k], infeasible[:, k] = result.active, result.infeasible
             if dropped is not None:
                 dropped[:, k] = result.dropped
@@ -143,6 +156,9 @@ def fly(
         min_clearance=final.get("min_clearance"),
         speed_violation_rate=final.get("speed_violation_rate"),
         cone_violation_rate=final.get("cone_violation_rate"),
+        keep_out_depth=final.get("keep_out_depth"),
+        speed_depth=final.get("speed_depth"),
+        cone_depth=final.get("cone_depth"),
         cbf_active=active,
         cbf_infeasible=infeasible,
         cbf_dropped=dropped,

@@ -5,7 +5,7 @@
 
     from cwh_envs.sb3 import NativeVecEnv
 
-    envs = NativeVecEnv("CWHDockKOZ-v0", 64, seed=0, cbf_margin=0.5, start_pool=65536)
+    envs = NativeVecEnv("CWHDockKOZ-v1", 64, seed=0, cbf_margin=0.5, start_pool=65536)
     model = PPO("MlpPolicy", VecNormalize(VecMonitor(envs)), seed=0).learn(100_000)
 
 It steps one native vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``,

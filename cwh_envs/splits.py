@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cwh_envs.problems import SCORING_ONLY
+
 DATA_DIR = Path(__file__).with_name("data")
 MANIFEST = DATA_DIR / "manifest.json"
 MANIFEST_FORMAT = 1
@@ -62,8 +64,14 @@ def describe_start(state) -> str:
 
 
 def problem_fields(problem) -> dict:
-    """A problem as the manifest writes it: its type and every constant, tuples as lists."""
-    fields = {k: list(v) if isinstance(v, tuple) else v for k, v in problem.as_dict().items()}
+    """A problem as the manifest writes it: its type and every constant that decides the starts and
+    the expert, tuples as lists (scoring-only constants, :data:`cwh_envs.problems.SCORING_ONLY`, are
+    left out: the same starts and expert serve every capture envelope)."""
+    fields = {
+        k: list(v) if isinstance(v, tuple) else v
+        for k, v in problem.as_dict().items()
+        if k not in SCORING_ONLY
+    }
     return {"type": type(problem).__name__, **fields}
 
 

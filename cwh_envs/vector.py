@@ -190,7 +190,7 @@ class CWHRendezvousVectorEnv(_CWHVectorEnv):
 
 
 class CWHDockKOZVectorEnv(_CWHVectorEnv):
-    """``CWHDockKOZ-v0`` with ``num_envs`` rows: observations (N, 10), actions (N, 3).
+    """``CWHDockKOZ-v1`` with ``num_envs`` rows: observations (N, 10), actions (N, 3).
 
     ``cbf_margin`` (metres, default ``None`` = off) applies the predictive CBF of
     :func:`cwh_envs.cbf.safe_actions` to the whole batch before stepping, the same pure function

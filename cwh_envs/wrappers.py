@@ -10,13 +10,14 @@ import numpy as np
 from cwh_envs.actions import check_actions
 from cwh_envs.cbf_multi import BARRIERS
 from cwh_envs.core import check_margin, filter_actions
+from cwh_envs.dispersions import FILTER_SEES
 from cwh_envs.docking import CWHDockKOZEnv
 
 
 class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
     """Minimally edit each action so the two-step-ahead position stays outside ``R + margin``.
 
-    For ``CWHDockKOZ-v0`` (directly or under ``gym.make``'s wrappers). Each step the wrapper reads
+    For ``CWHDockKOZ-v1`` (directly or under ``gym.make``'s wrappers). Each step the wrapper reads
     the unwrapped env's state, converts the clipped normalised action to newtons, applies
     :func:`cwh_envs.cbf.safe_actions` (the exact minimiser of ``||u - u_nominal||^2`` subject to
     the barrier ``beta^T u >= rho`` and the thrust box) and passes the result, normalised again,
@@ -44,27 +45,35 @@ class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
     (:func:`cwh_envs.cbf_multi.safe_actions_multi`); ``cbf_infeasible`` then means that no box
     action met them all, and ``cbf_dropped`` names what was given up (the cone first).
 
+    Under dispersions (:class:`cwh_envs.dispersions.Dispersions` below it, or the env's
+    ``dispersions=`` option) the filter acts on the navigation estimate, ``navigation_state``, as flight
+    software's run-time assurance does; ``sees="truth"`` feeds it the true state instead (a comparison
+    that flatters the filter). Without dispersions the two are the same state.
+
     Args:
-        env: a ``CWHDockKOZ-v0`` env, possibly wrapped.
+        env: a ``CWHDockKOZ`` env (``-v1`` or ``-v0``), possibly wrapped.
         margin: standoff ``delta`` in metres added to the keep-out radius; ``None`` (default) uses
             the env's ``problem.margin`` (0.5 m, the paper's value). Negative raises ``ValueError``.
+        sees: ``"estimate"`` (default) or ``"truth"``: the state the filter acts on.
     """
 
-    def __init__(self, env: gym.Env, margin: float | None = None) -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, margin=margin)
+    def __init__(self, env: gym.Env, margin: float | None = None, sees: str = "estimate") -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, margin=margin, sees=sees)
         gym.ActionWrapper.__init__(self, env)
         if not isinstance(env.unwrapped, CWHDockKOZEnv):
             raise TypeError(
-                f"CBFSafetyFilter needs a CWHDockKOZ-v0 env (the keep-out problem), got {env.unwrapped!r}"
+                f"CBFSafetyFilter needs a CWHDockKOZ env (the keep-out problem), got {env.unwrapped!r}"
             )
+        if sees not in FILTER_SEES:
+            raise ValueError(f"sees must be one of {FILTER_SEES}, got {sees!r}")
         self.margin = env.unwrapped.problem.margin if margin is None else check_margin(margin)
+        self.sees = sees
         self._last = None
 
     def action(self, action: Any) -> np.ndarray:
         base = self.env.unwrapped
-        safe, self._last = filter_actions(
-            check_actions(action, (3,)), base.state, base.problem, self.margin, base.goal
-        )
+        state = base.state if self.sees == "truth" else self.env.get_wrapper_attr("navigation_state")
+        safe, self._last = filter_actions(check_actions(action, (3,)), state, base.problem, self.margin, base.goal)
         return safe  # float64 on purpose: a float32 round-trip would shift the barrier's edit
 
     def step(self, action: Any):

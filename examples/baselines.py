@@ -2,7 +2,7 @@
 
     .venv/bin/python examples/baselines.py [--seed 0] [--constrained]
 
-For CWHRendezvous-v0 and CWHDockKOZ-v0 (``--constrained``: with the docking-constrained family's
+For CWHRendezvous-v0 and CWHDockKOZ-v1 (``--constrained``: with the docking-constrained family's
 speed limit and approach cone), one start drawn by ``reset(seed=...)`` is flown by
 
 - ``MinEnergyFeedback``: the optimal-control expert's unconstrained minimum-energy solution
@@ -57,9 +57,9 @@ def main() -> None:
         "| env | controller | terminal distance [m] | success | violation rate | energy / expert | µs per step |"
     )
     print("|---|---|---:|---|---:|---:|---:|")
-    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v0"):
-        kwargs = CONSTRAINTS if env_id == "CWHDockKOZ-v0" and args.constrained else {}
-        docking = env_id == "CWHDockKOZ-v0"
+    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v1"):
+        kwargs = CONSTRAINTS if env_id == "CWHDockKOZ-v1" and args.constrained else {}
+        docking = env_id == "CWHDockKOZ-v1"
         plain = gym.make(env_id, **kwargs)
         plain.reset(seed=args.seed)
         problem, start = plain.unwrapped.problem, plain.unwrapped.state

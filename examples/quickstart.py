@@ -56,13 +56,13 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     print("| env | policy | terminal distance [m] | terminal speed [m/s] | success | violation rate |")
     print("|---|---|---:|---:|---|---:|")
-    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v0"):
+    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v1"):
         env = gym.make(f"cwh_envs:{env_id}", render_mode="rgb_array")
         env.reset(seed=args.seed)
         env.action_space.seed(args.seed)
         # Pin the sampled start (and docking point) so both policies fly the same episode.
         options = {"initial_state": env.unwrapped.state.copy()}
-        if env_id == "CWHDockKOZ-v0":
+        if env_id == "CWHDockKOZ-v1":
             options["goal"] = env.unwrapped.goal.copy()
         for name, actions in (("expert", expert_actions(env)), ("random", None)):
             info = fly(env, options, actions)

@@ -2,7 +2,7 @@
 
 What would a reader try instead of cloning the expert? Reinforcement learning on the env's dense
 reward, or a classical feedback law. This script trains Stable-Baselines3's PPO and SAC on
-CWHRendezvous-v0 and CWHDockKOZ-v0 (docking without and with the CBFSafetyFilter in the loop) and
+CWHRendezvous-v0 and CWHDockKOZ-v1 (docking without and with the CBFSafetyFilter in the loop) and
 scores every policy with the families' own code: the 128 held-out starts of the search split,
 flown in closed loop as one batch by the family train.py's ``evaluate`` (the env's own batched core
 and CBF, cwh_envs.rollout), then the family metric and the fuel used against the expert's from the
@@ -125,9 +125,9 @@ def parse_args() -> argparse.Namespace:
 # filter is the multi-constraint one.
 PROBLEMS = {
     "rendezvous": dict(family="rendezvous", env_id="cwh_envs:CWHRendezvous-v0", cbf=False),
-    "docking": dict(family="docking", env_id="cwh_envs:CWHDockKOZ-v0", cbf=False),
-    "docking+cbf": dict(family="docking", env_id="cwh_envs:CWHDockKOZ-v0", cbf=True),
-    "docking-constrained+cbf": dict(family="docking-constrained", env_id="cwh_envs:CWHDockKOZ-v0", cbf=True),
+    "docking": dict(family="docking", env_id="cwh_envs:CWHDockKOZ-v1", cbf=False),
+    "docking+cbf": dict(family="docking", env_id="cwh_envs:CWHDockKOZ-v1", cbf=True),
+    "docking-constrained+cbf": dict(family="docking-constrained", env_id="cwh_envs:CWHDockKOZ-v1", cbf=True),
 }
 
 # Hyperparameters written the way rl-baselines3-zoo writes hyperparams/ppo.yml and sac.yml for

@@ -20,7 +20,7 @@ import numpy as np
 
 from cwh_envs.controllers import pd_action
 
-ENV_IDS = {"rendezvous": "cwh_envs:CWHRendezvous-v0", "docking": "cwh_envs:CWHDockKOZ-v0"}
+ENV_IDS = {"rendezvous": "cwh_envs:CWHRendezvous-v0", "docking": "cwh_envs:CWHDockKOZ-v1"}
 
 
 def parse_args() -> argparse.Namespace:

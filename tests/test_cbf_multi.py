@@ -152,7 +152,7 @@ def test_a_feasible_answer_meets_the_speed_limit_and_the_cone_on_the_prediction(
 def test_the_wrapper_and_the_vector_env_report_what_the_filter_dropped():
     env = CBFSafetyFilter(
         gym.make(
-            "CWHDockKOZ-v0", speed_limit=CONSTRAINED.speed_limit, approach_cone=CONSTRAINED.approach_cone
+            "CWHDockKOZ-v1", speed_limit=CONSTRAINED.speed_limit, approach_cone=CONSTRAINED.approach_cone
         )
     )
     # 10 m from the port, 40 degrees off the cone's axis and closing: the cone cannot be kept.
@@ -168,7 +168,7 @@ def test_the_wrapper_and_the_vector_env_report_what_the_filter_dropped():
     vector.reset(seed=0, options={"initial_state": np.stack([start, start]), "goal": np.stack([goal, goal])})
     _, _, _, _, info = vector.step(np.zeros((2, 3), np.float32))
     np.testing.assert_array_equal(info["cbf_dropped"], [[False, False, True]] * 2)
-    plain = CBFSafetyFilter(gym.make("CWHDockKOZ-v0"))
+    plain = CBFSafetyFilter(gym.make("CWHDockKOZ-v1"))
     plain.reset(seed=0)
     assert "cbf_dropped" not in plain.step(np.zeros(3, np.float32))[4]
 

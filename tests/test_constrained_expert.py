@@ -24,10 +24,10 @@ def starts():
 
 
 def fly_in_env(problem: DockingProblem, x0, goal, thrust) -> dict:
-    """The final info of the expert's thrust flown open loop through CWHDockKOZ-v0 with the problem's
+    """The final info of the expert's thrust flown open loop through CWHDockKOZ-v1 with the problem's
     constraints (the same keyword arguments)."""
     kwargs = {k: v for k, v in problem.as_dict().items() if v is not None}
-    env = gym.make("CWHDockKOZ-v0", **kwargs)
+    env = gym.make("CWHDockKOZ-v1", **kwargs)
     env.reset(options={"initial_state": x0, "goal": goal})
     costs = 0.0
     for u in thrust:

@@ -17,9 +17,9 @@ LIMITS = {"speed_limit": (0.01, 0.00226), "approach_cone": (30.0, 15.0)}
 GOAL = np.array([8.0, 0.0, 0.0])  # the docking axis is +x
 
 
-def stepped(state, action=(0.0, 0.0, 0.0), **kwargs):
+def stepped(state, action=(0.0, 0.0, 0.0), env_id="CWHDockKOZ-v1", **kwargs):
     """(info at reset, info after one step) from ``state`` with goal GOAL."""
-    env = gym.make("CWHDockKOZ-v0", **kwargs)
+    env = gym.make(env_id, **kwargs)
     _, first = env.reset(seed=0, options={"initial_state": np.asarray(state, float), "goal": GOAL})
     _, reward, _, _, info = env.step(np.asarray(action, np.float32))
     return env, first, reward, info
@@ -62,17 +62,19 @@ def test_the_speed_limit_costs_each_step_over_it():
         ([0.0, 20.0, 0.0], False, False),  # outside the region: the cone does not apply
     ],
 )
-def test_the_approach_cone_costs_a_step_in_its_region_outside_it(offset, region, broken):
-    env, _, _, info = stepped([*(GOAL + offset), 0, 0, 0], approach_cone=LIMITS["approach_cone"])
+@pytest.mark.parametrize(("env_id", "setback"), [("CWHDockKOZ-v0", 0.0), ("CWHDockKOZ-v1", 0.1 / np.tan(np.radians(30)))])
+def test_the_approach_cone_costs_a_step_in_its_region_outside_it(offset, region, broken, env_id, setback):
+    env, _, _, info = stepped([*(GOAL + offset), 0, 0, 0], env_id=env_id, approach_cone=LIMITS["approach_cone"])
     r = env.unwrapped._core.states[0, :3]  # one coasting step moves it a little
-    angle = np.degrees(np.arccos((r - GOAL)[0] / np.linalg.norm(r - GOAL)))
+    apex = GOAL - [setback, 0.0, 0.0]  # v1: the capture envelope sets the apex behind the port
+    angle = np.degrees(np.arccos((r - apex)[0] / np.linalg.norm(r - apex)))
     assert info["in_cone_region"] is region and info["cone_angle"] == pytest.approx(angle)
     assert info["cost_cone"] == float(broken) and info["cost"] == float(broken)
     assert info["reward_terms"]["cone"] == -float(broken)
 
 
 def test_episode_end_reports_each_constraint_and_success_needs_all():
-    env = gym.make("CWHDockKOZ-v0", **LIMITS)
+    env = gym.make("CWHDockKOZ-v1", **LIMITS)
     start = np.r_[GOAL + np.array([0.0, 12.0, 0.0]), 0.0, -0.1, 0.0]  # into the region from the side, fast
     env.reset(seed=0, options={"initial_state": start, "goal": GOAL})
     speed_broken = cone_broken = 0
@@ -98,10 +100,10 @@ def test_episode_end_reports_each_constraint_and_success_needs_all():
 def test_the_vector_env_reports_what_the_single_env_does():
     starts = np.array([[28.0, 0, 0, -0.2, 0, 0], [16.0, 6.0, 0, 0, 0, 0], [40.0, -30.0, 5.0, 0.05, 0.1, 0]])
     goals = np.tile(GOAL, (3, 1))
-    vector = gym.make_vec("CWHDockKOZ-v0", num_envs=3, vectorization_mode="vector_entry_point", **LIMITS)
+    vector = gym.make_vec("CWHDockKOZ-v1", num_envs=3, vectorization_mode="vector_entry_point", **LIMITS)
     vector.reset(seed=0, options={"initial_state": starts, "goal": goals})
     actions = np.random.default_rng(0).uniform(-1, 1, (5, 3, 3)).astype(np.float32)
-    singles = [gym.make("CWHDockKOZ-v0", **LIMITS) for _ in range(3)]
+    singles = [gym.make("CWHDockKOZ-v1", **LIMITS) for _ in range(3)]
     for env, start in zip(singles, starts, strict=True):
         env.reset(seed=0, options={"initial_state": start, "goal": GOAL})
     for batch in actions:
@@ -139,7 +141,7 @@ def test_the_constraint_functions_match_their_definitions():
 )
 def test_bad_constraints_are_refused_by_name(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        gym.make("CWHDockKOZ-v0", **kwargs)
+        gym.make("CWHDockKOZ-v1", **kwargs)
 
 
 @pytest.mark.needs("sb3")
@@ -148,5 +150,5 @@ def test_the_constrained_env_passes_gymnasiums_and_sb3s_checkers():
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        check_env(gym.make("CWHDockKOZ-v0", **LIMITS).unwrapped, skip_render_check=True)
-        sb3_check_env(gym.make("CWHDockKOZ-v0", **LIMITS), warn=True)
+        check_env(gym.make("CWHDockKOZ-v1", **LIMITS).unwrapped, skip_render_check=True)
+        sb3_check_env(gym.make("CWHDockKOZ-v1", **LIMITS), warn=True)

@@ -48,7 +48,7 @@ def test_capped_speed_flies_at_the_goal_and_brakes_to_the_cap():
 
 def test_pd_docks_most_starts_through_the_filter():
     envs = gym.make_vec(
-        "cwh_envs:CWHDockKOZ-v0", num_envs=32, vectorization_mode="vector_entry_point", cbf_margin=0.5
+        "cwh_envs:CWHDockKOZ-v1", num_envs=32, vectorization_mode="vector_entry_point", cbf_margin=0.5
     )
     obs, _ = envs.reset(seed=0)
     problem = envs.unwrapped.problem

@@ -23,7 +23,7 @@ def run(env, seed, actions):
     return info, np.array(observed), np.array(states)
 
 
-@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v0"])
+@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v1"])
 def test_same_seed_same_dispersions_and_the_nominal_starts(env_id):
     actions = np.random.default_rng(0).uniform(-1, 1, (20, 3)).astype(np.float32)
     first = run(Dispersions(gym.make(env_id), **ALL), 7, actions)
@@ -38,8 +38,8 @@ def test_same_seed_same_dispersions_and_the_nominal_starts(env_id):
 
 def test_off_by_default_is_the_nominal_env():
     actions = np.random.default_rng(1).uniform(-1, 1, (30, 3)).astype(np.float32)
-    dispersed = run(Dispersions(gym.make("CWHDockKOZ-v0")), 3, actions)
-    nominal = run(gym.make("CWHDockKOZ-v0"), 3, actions)
+    dispersed = run(Dispersions(gym.make("CWHDockKOZ-v1")), 3, actions)
+    nominal = run(gym.make("CWHDockKOZ-v1"), 3, actions)
     np.testing.assert_array_equal(dispersed[1], nominal[1])
     np.testing.assert_array_equal(dispersed[2], nominal[2])
     assert dispersed[0]["dispersion"] == {"thrust_scale": 1.0, "misalignment_deg": 0.0, "mass_scale": 1.0}
@@ -63,7 +63,7 @@ def test_each_plant_error_acts_as_named():
 
 
 def test_navigation_noise_is_on_the_observation_only():
-    env = Dispersions(gym.make("CWHDockKOZ-v0"), nav_position=0.5, nav_velocity=0.01)
+    env = Dispersions(gym.make("CWHDockKOZ-v1"), nav_position=0.5, nav_velocity=0.01)
     env.reset(seed=5)
     errors = []
     for _ in range(200):
@@ -72,7 +72,7 @@ def test_navigation_noise_is_on_the_observation_only():
     errors = np.array(errors)
     assert errors[:, :3].std() == pytest.approx(0.5, rel=0.15)
     assert errors[:, 3:].std() == pytest.approx(0.01, rel=0.15)
-    nominal = gym.make("CWHDockKOZ-v0")
+    nominal = gym.make("CWHDockKOZ-v1")
     nominal.reset(seed=5)
     for _ in range(200):
         nominal.step(np.zeros(3, np.float32))
@@ -84,10 +84,10 @@ def test_navigation_noise_is_on_the_observation_only():
 )
 def test_bad_spreads_are_refused(bad):
     with pytest.raises(ValueError, match="must"):
-        Dispersions(gym.make("CWHDockKOZ-v0"), **bad)
+        Dispersions(gym.make("CWHDockKOZ-v1"), **bad)
 
 
-@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v0"])
+@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v1"])
 def test_the_env_option_is_the_wrapper(env_id):
     actions = np.random.default_rng(2).uniform(-1, 1, (25, 3)).astype(np.float32)
     wrapped = run(Dispersions(gym.make(env_id), **ALL), 11, actions)
@@ -112,7 +112,7 @@ def test_fly_draws_what_the_wrapped_env_draws_start_by_start():
     flight = fly(problem, law, pool.starts, pool.goals, cbf_margin=0.5, dispersions=ALL, dispersion_seed=40)
     nominal = fly(problem, law, pool.starts, pool.goals, cbf_margin=0.5)
     for i in range(4):
-        env = CBFSafetyFilter(Dispersions(gym.make("CWHDockKOZ-v0"), **ALL))
+        env = CBFSafetyFilter(Dispersions(gym.make("CWHDockKOZ-v1"), **ALL))
         obs, _ = env.reset(seed=40 + i, options={"initial_state": pool.starts[i], "goal": pool.goals[i]})
         states = [env.unwrapped.state]
         done = False
@@ -127,4 +127,4 @@ def test_fly_draws_what_the_wrapped_env_draws_start_by_start():
 def test_the_dispersed_env_passes_gymnasiums_checker():
     from gymnasium.utils.env_checker import check_env
 
-    check_env(gym.make("CWHDockKOZ-v0", dispersions=ALL).unwrapped, skip_render_check=True)
+    check_env(gym.make("CWHDockKOZ-v1", dispersions=ALL).unwrapped, skip_render_check=True)

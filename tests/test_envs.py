@@ -14,21 +14,21 @@ from cwh_envs.docking import CWHDockKOZEnv
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 from cwh_envs.rendezvous import CWHRendezvousEnv
 
-IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v0")
+IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v1")
 STEP_KEYS = {
     "CWHRendezvous-v0": {"distance", "speed"},
-    "CWHDockKOZ-v0": {"distance", "speed", "clearance", "in_koz"},
+    "CWHDockKOZ-v1": {"distance", "speed", "clearance", "in_koz"},
 }
 FINAL_KEYS = {
     "CWHRendezvous-v0": {"terminal_distance", "terminal_speed", "is_success"},
-    "CWHDockKOZ-v0": {"terminal_distance", "terminal_speed", "is_success", "violation_rate", "min_clearance"},
+    "CWHDockKOZ-v1": {"terminal_distance", "terminal_speed", "is_success", "violation_rate", "min_clearance"},
 }
 DOCK_START = np.array([-60.0, 5.0, 3.0, 0.0, 0.0, 0.0])
 DOCK_GOAL = np.array([8.0, 0.0, 0.0])
 # Fixed starts for short-horizon envs: the screened samplers need the default horizons.
 FIXED = {
     "CWHRendezvous-v0": {"initial_state": np.array([30.0, -20.0, 5.0, 0.01, 0.0, 0.0])},
-    "CWHDockKOZ-v0": {"initial_state": DOCK_START, "goal": DOCK_GOAL},
+    "CWHDockKOZ-v1": {"initial_state": DOCK_START, "goal": DOCK_GOAL},
 }
 
 
@@ -69,7 +69,7 @@ def test_sb3s_checker_passes_without_warnings(env_id):
 
 def test_the_package_prefix_imports_and_registers():
     assert isinstance(gym.make("cwh_envs:CWHRendezvous-v0").unwrapped, CWHRendezvousEnv)
-    assert isinstance(gym.make("CWHDockKOZ-v0").unwrapped, CWHDockKOZEnv)
+    assert isinstance(gym.make("CWHDockKOZ-v1").unwrapped, CWHDockKOZEnv)
     assert gym.spec("CWHRendezvous-v0").max_episode_steps is None  # the env ends its own episodes
     assert cwh_envs.CBFSafetyFilter.__name__ == "CBFSafetyFilter"
 
@@ -200,7 +200,7 @@ def test_expert_controls_succeed_in_the_env():
     assert terminated and info["is_success"] and info["terminal_distance"] < 1e-6
     assert info["reward_terms"]["terminal"] > 9.9
 
-    env = gym.make("CWHDockKOZ-v0")
+    env = gym.make("CWHDockKOZ-v1")
     env.reset(options={"initial_state": DOCK_START, "goal": DOCK_GOAL})
     _, controls = solve_docking(DOCK_START, DOCK_GOAL)
     total_cost = 0.0
@@ -212,7 +212,7 @@ def test_expert_controls_succeed_in_the_env():
 
 
 def test_docking_keep_out_accounting():
-    env = gym.make("CWHDockKOZ-v0", horizon=4)
+    env = gym.make("CWHDockKOZ-v1", horizon=4)
     _, info = env.reset(options={"initial_state": np.array([1.0, 0, 0, 0, 0, 0]), "goal": DOCK_GOAL})
     assert info["in_koz"] is True and info["clearance"] == pytest.approx(-4.0)
     for _ in range(4):
@@ -231,7 +231,7 @@ def test_docking_keep_out_accounting():
 
 
 def test_docking_reset_options_fill_the_missing_part_from_the_sampler():
-    env = gym.make("CWHDockKOZ-v0").unwrapped
+    env = gym.make("CWHDockKOZ-v1").unwrapped
     env.reset(seed=5, options={"goal": DOCK_GOAL})
     np.testing.assert_array_equal(env.goal, DOCK_GOAL)
     assert np.linalg.norm(env.state[:3]) >= 40.0 - 1e-9
@@ -247,10 +247,10 @@ def test_docking_reset_options_fill_the_missing_part_from_the_sampler():
         ("CWHRendezvous-v0", {"initial_state": [2e4, 0, 0, 0, 0, 0]}, "position"),
         ("CWHRendezvous-v0", {"initial_state": "far"}, "numeric"),
         ("CWHRendezvous-v0", {"goal": DOCK_GOAL}, "unknown reset option"),
-        ("CWHDockKOZ-v0", {"goal": np.zeros(2)}, "shape"),
-        ("CWHDockKOZ-v0", {"goal": [3.0, 0.0, 0.0]}, "outside the keep-out"),
-        ("CWHDockKOZ-v0", {"goal": [5.5, 0.0, 0.0]}, "outside the keep-out"),  # exactly at R + margin
-        ("CWHDockKOZ-v0", {"initial_state": np.zeros((2, 6))}, "shape"),
+        ("CWHDockKOZ-v1", {"goal": np.zeros(2)}, "shape"),
+        ("CWHDockKOZ-v1", {"goal": [3.0, 0.0, 0.0]}, "outside the keep-out"),
+        ("CWHDockKOZ-v1", {"goal": [5.5, 0.0, 0.0]}, "outside the keep-out"),  # exactly at R + margin
+        ("CWHDockKOZ-v1", {"initial_state": np.zeros((2, 6))}, "shape"),
     ],
 )
 def test_bad_reset_options_raise_value_error(env_id, options, match):
@@ -266,8 +266,8 @@ def test_bad_reset_options_raise_value_error(env_id, options, match):
         ("CWHRendezvous-v0", {"discretization": "rk4"}, ValueError, "discretization"),
         ("CWHRendezvous-v0", {"effort_weight": -0.1}, ValueError, "effort_weight"),
         ("CWHRendezvous-v0", {"koz_weight": 1.0}, TypeError, "koz_weight"),
-        ("CWHDockKOZ-v0", {"goal_radius": 5.2}, ValueError, "goal_radius"),
-        ("CWHDockKOZ-v0", {"koz_weight": float("nan")}, ValueError, "koz_weight"),
+        ("CWHDockKOZ-v1", {"goal_radius": 5.2}, ValueError, "goal_radius"),
+        ("CWHDockKOZ-v1", {"koz_weight": float("nan")}, ValueError, "koz_weight"),
     ],
 )
 def test_bad_constructor_arguments(env_id, kwargs, error, match):
@@ -284,6 +284,6 @@ def test_unsupported_render_mode():
 def test_every_problem_field_is_a_keyword_argument():
     rdzv = gym.make("CWHRendezvous-v0", **RendezvousProblem(horizon=30, u_max=0.5).as_dict()).unwrapped
     assert rdzv.problem == RendezvousProblem(horizon=30, u_max=0.5)
-    dock = gym.make("CWHDockKOZ-v0", koz_radius=4.0, margin=1.0, progress_weight=0.5).unwrapped
+    dock = gym.make("CWHDockKOZ-v1", koz_radius=4.0, margin=1.0, progress_weight=0.5).unwrapped
     assert dock.problem == DockingProblem(koz_radius=4.0, margin=1.0)
     assert dock.reward_weights.progress_weight == 0.5

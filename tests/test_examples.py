@@ -77,14 +77,14 @@ def test_quickstart(tmp_path):
     stdout = run("quickstart.py", "--out", tmp_path / "out", cwd=tmp_path)
     rows = {(row[0], row[1]): row for row in table_rows(stdout)}
     assert set(rows) == {
-        (env, policy) for env in ("CWHRendezvous-v0", "CWHDockKOZ-v0") for policy in ("expert", "random")
+        (env, policy) for env in ("CWHRendezvous-v0", "CWHDockKOZ-v1") for policy in ("expert", "random")
     }
-    for env in ("CWHRendezvous-v0", "CWHDockKOZ-v0"):
+    for env in ("CWHRendezvous-v0", "CWHDockKOZ-v1"):
         assert float(rows[env, "expert"][2]) < 1e-6 and rows[env, "expert"][4] == "True"
         assert float(rows[env, "random"][2]) > 1.0 and rows[env, "random"][4] == "False"
         for policy in ("expert", "random"):
             assert_png(tmp_path / "out" / f"{env}_{policy}.png")
-    assert rows["CWHDockKOZ-v0", "expert"][5] == "0.0%"
+    assert rows["CWHDockKOZ-v1", "expert"][5] == "0.0%"
 
 
 @pytest.mark.parametrize(
@@ -239,7 +239,7 @@ def test_sb3_policy_batch_matches_the_env(one_torch_thread):
     from stable_baselines3.common.vec_env import VecNormalize
 
     family = compare.load_family("docking")
-    train_envs = VecNormalize(make_vec_env("cwh_envs:CWHDockKOZ-v0", n_envs=2, seed=0))
+    train_envs = VecNormalize(make_vec_env("cwh_envs:CWHDockKOZ-v1", n_envs=2, seed=0))
     model = PPO("MlpPolicy", train_envs, n_steps=64, batch_size=64, n_epochs=1, seed=0)
     model.learn(128)  # a moved policy and moved normalisation statistics
     evaluate = compare.EvalSet(family, cbf=True)
@@ -248,7 +248,7 @@ def test_sb3_policy_batch_matches_the_env(one_torch_thread):
     metrics = evaluate(compare.SB3Policy(model))
 
     envs = gym.make_vec(
-        "cwh_envs:CWHDockKOZ-v0", num_envs=16, vectorization_mode="vector_entry_point", cbf_margin=0.5
+        "cwh_envs:CWHDockKOZ-v1", num_envs=16, vectorization_mode="vector_entry_point", cbf_margin=0.5
     )
     obs, _ = envs.reset(seed=0, options={"initial_state": evaluate.starts, "goal": evaluate.goals})
     for _ in range(family.PROBLEM.horizon):
@@ -266,8 +266,8 @@ def test_baselines_fly_every_controller_through_gym_make(tmp_path):
     lands on rendezvous too, and on docking through the filter without entering the keep-out."""
     rows = {(row[0], row[1]): row for row in table_rows(run("baselines.py", "--seed", 3, cwd=tmp_path))}
     assert len(rows) == 6
-    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v0"):
+    for env_id in ("CWHRendezvous-v0", "CWHDockKOZ-v1"):
         mpc = rows[(env_id, "MPC")]
         assert float(mpc[2]) < 1e-5 and mpc[3] == "True" and abs(float(mpc[5]) - 1) < 1e-3
-    assert rows[("CWHDockKOZ-v0", "closed-form feedback + CBF")][4] == "0.0%"
-    assert rows[("CWHDockKOZ-v0", "MPC")][4] == "0.0%"
+    assert rows[("CWHDockKOZ-v1", "closed-form feedback + CBF")][4] == "0.0%"
+    assert rows[("CWHDockKOZ-v1", "MPC")][4] == "0.0%"

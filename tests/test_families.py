@@ -293,7 +293,7 @@ def test_the_family_scores_exactly_what_gym_make_flies(name, warm, tmp_path, mon
     cbf = saved["config"].get("RUNTIME_CBF_FILTER", False)
     flight = train.fly(policy, held_out.starts, held_out.goals, cbf) if name == "docking" else None
     flight = flight or train.fly(policy, held_out.starts)
-    env_id = {"rendezvous": "CWHRendezvous-v0", "docking": "CWHDockKOZ-v0"}[name]
+    env_id = {"rendezvous": "CWHRendezvous-v0", "docking": "CWHDockKOZ-v1"}[name]
     envs, observations = [], []
     for start, goal in zip(held_out.starts, held_out.goals, strict=True):
         env = gym.make(env_id)

@@ -53,7 +53,7 @@ def test_autoresearch_help_imports_nothing_heavy():
 
 
 def test_import_cwh_envs_registers_the_ids_and_imports_only_numpy_beside_gymnasium():
-    assert imported_by("import cwh_envs, gymnasium as gym\nassert 'CWHDockKOZ-v0' in gym.registry") == [
+    assert imported_by("import cwh_envs, gymnasium as gym\nassert 'CWHDockKOZ-v1' in gym.registry") == [
         "numpy"
     ]
     # The filter is still there, imported when first used.

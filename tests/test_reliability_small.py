@@ -56,7 +56,7 @@ def test_a_horizon_too_long_to_build_is_refused_at_once():
         assert problem(horizon=MAX_HORIZON).horizon == MAX_HORIZON
 
 
-@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v0"])
+@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v1"])
 def test_complex_actions_and_states_are_refused_not_cast(env_id):
     env = gym.make(env_id)
     env.reset(seed=0)

@@ -13,7 +13,7 @@ from cwh_envs.problems import DockingProblem, RendezvousProblem
 from cwh_envs.render import plot_trajectories, render_frame
 
 
-@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v0"])
+@pytest.mark.parametrize("env_id", ["CWHRendezvous-v0", "CWHDockKOZ-v1"])
 def test_rgb_array_is_an_image_of_the_trajectory(env_id):
     env = gym.make(env_id, render_mode="rgb_array")
     env.reset(seed=0)

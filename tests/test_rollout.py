@@ -45,7 +45,7 @@ def test_docking_flight_equals_gym_make_per_start(cbf_margin, tmp_path):
     held_out = evaluation_set("docking", 24, cache_dir=tmp_path)
     policy = linear_policy(10)
     flight = fly(problem, policy, held_out.starts, held_out.goals, cbf_margin=cbf_margin)
-    infos = fly_one_by_one("CWHDockKOZ-v0", policy, held_out.starts, held_out.goals, cbf_margin)
+    infos = fly_one_by_one("CWHDockKOZ-v1", policy, held_out.starts, held_out.goals, cbf_margin)
     for key in ("terminal_distance", "terminal_speed", "violation_rate", "min_clearance", "is_success"):
         np.testing.assert_array_equal([info[key] for info in infos], getattr(flight, key), err_msg=key)
     assert flight.states.shape == (24, problem.horizon + 1, 6) and flight.thrust.shape == (

@@ -31,7 +31,7 @@ pytestmark = pytest.mark.needs("sb3")
 N = 3
 CASES = {  # name: env id, adapter kwargs, make_vec_env wrapper
     "rendezvous": ("cwh_envs:CWHRendezvous-v0", {}, None),
-    "docking+cbf": ("cwh_envs:CWHDockKOZ-v0", {"cbf_margin": 0.5}, CBFSafetyFilter),
+    "docking+cbf": ("cwh_envs:CWHDockKOZ-v1", {"cbf_margin": 0.5}, CBFSafetyFilter),
 }
 
 
@@ -131,7 +131,7 @@ def test_ppo_learns_on_the_adapter_under_vec_normalize_and_vec_monitor():
 
 
 def test_info_keys_keep_only_the_named_keys_and_sb3s_own():
-    envs = NativeVecEnv("CWHDockKOZ-v0", N, seed=0, start_pool=128, info_keys=("is_success", "cost"))
+    envs = NativeVecEnv("CWHDockKOZ-v1", N, seed=0, start_pool=128, info_keys=("is_success", "cost"))
     envs.reset()
     assert envs.reset_infos == [{}] * N
     horizon = envs.get_attr("problem")[0].horizon
@@ -141,11 +141,11 @@ def test_info_keys_keep_only_the_named_keys_and_sb3s_own():
             assert infos == [{"cost": 0.0, "TimeLimit.truncated": False}] * N
     assert set(infos[0]) == {"cost", "is_success", "terminal_observation", "TimeLimit.truncated"}
     with pytest.raises(TypeError, match="info_keys"):
-        NativeVecEnv("CWHDockKOZ-v0", N, info_keys="is_success")
+        NativeVecEnv("CWHDockKOZ-v1", N, info_keys="is_success")
 
 
 def test_attributes_methods_seeding_and_errors():
-    envs = NativeVecEnv("CWHDockKOZ-v0", N, start_pool=128)
+    envs = NativeVecEnv("CWHDockKOZ-v1", N, start_pool=128)
     envs.seed(7)
     first = envs.reset()
     native = envs.env.unwrapped
@@ -168,7 +168,7 @@ def test_attributes_methods_seeding_and_errors():
         assert envs.render() is None
     assert any("render_mode" in str(w.message) for w in caught)
     with pytest.raises(TypeError, match="autoreset_mode"):
-        NativeVecEnv("CWHDockKOZ-v0", N, autoreset_mode="NextStep")
+        NativeVecEnv("CWHDockKOZ-v1", N, autoreset_mode="NextStep")
     envs.set_options([{"goal": [0.0, 0.0, 8.0]}, {}, {}])
     with pytest.raises(ValueError, match="same option keys"):
         envs.reset()

@@ -18,8 +18,8 @@ from cwh_envs.datasets import CacheMiss, start_pool
 from cwh_envs.experts import solve_rendezvous_many
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
-IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v0")
-TASKS = {"CWHRendezvous-v0": "rendezvous", "CWHDockKOZ-v0": "docking"}
+IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v1")
+TASKS = {"CWHRendezvous-v0": "rendezvous", "CWHDockKOZ-v1": "docking"}
 POOL = 64
 N = 4
 
@@ -51,13 +51,13 @@ def test_single_env_draws_its_start_from_the_pool_with_np_random(env_id):
         env.reset(seed=seed)
         drawn = seeding.np_random(seed)[0].integers(POOL)
         np.testing.assert_array_equal(env.unwrapped.state, pool.starts[drawn])
-        if env_id == "CWHDockKOZ-v0":
+        if env_id == "CWHDockKOZ-v1":
             np.testing.assert_array_equal(env.unwrapped.goal, pool.goals[drawn])
     # Explicit starts still win; a docking goal alone keeps the pooled start of the same draw.
-    x0 = np.array([10.0, -20.0, 5.0, 0.0, 0.01, 0.0]) * (4 if env_id == "CWHDockKOZ-v0" else 1)
+    x0 = np.array([10.0, -20.0, 5.0, 0.0, 0.01, 0.0]) * (4 if env_id == "CWHDockKOZ-v1" else 1)
     env.reset(seed=0, options={"initial_state": x0})
     np.testing.assert_array_equal(env.unwrapped.state, x0)
-    if env_id == "CWHDockKOZ-v0":
+    if env_id == "CWHDockKOZ-v1":
         goal = np.array([0.0, 0.0, 8.0])
         env.reset(seed=1, options={"goal": goal})
         np.testing.assert_array_equal(env.unwrapped.goal, goal)
@@ -95,7 +95,7 @@ def assert_info_equal(native: dict, sync: dict, path: str = "info") -> None:
 
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
 @pytest.mark.parametrize(
-    ("env_id", "cbf"), [("CWHRendezvous-v0", False), ("CWHDockKOZ-v0", False), ("CWHDockKOZ-v0", True)]
+    ("env_id", "cbf"), [("CWHRendezvous-v0", False), ("CWHDockKOZ-v1", False), ("CWHDockKOZ-v1", True)]
 )
 def test_pooled_native_rows_equal_sync_vector_env_through_autoresets(env_id, cbf, mode):
     """Same seed, same actions, no explicit starts: every output equal to the bit, over two episodes."""
@@ -134,7 +134,7 @@ def test_pooled_native_rows_equal_sync_vector_env_through_autoresets(env_id, cbf
 
 def test_same_step_autoreset_returns_the_next_start_and_the_final_step_in_info():
     envs = gym.make_vec(
-        "CWHDockKOZ-v0", num_envs=N, vectorization_mode="vector_entry_point", autoreset_mode="SameStep"
+        "CWHDockKOZ-v1", num_envs=N, vectorization_mode="vector_entry_point", autoreset_mode="SameStep"
     )
     assert envs.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
     envs.reset(seed=0)
@@ -175,7 +175,7 @@ def test_bad_pool_and_autoreset_arguments(kwargs, match):
         gym.make_vec("CWHRendezvous-v0", num_envs=2, vectorization_mode="vector_entry_point", **kwargs)
     if "start_pool" in kwargs:
         with pytest.raises(ValueError, match=match):
-            gym.make("CWHDockKOZ-v0", **kwargs)
+            gym.make("CWHDockKOZ-v1", **kwargs)
 
 
 @pytest.mark.parametrize("env_id", IDS)

@@ -12,7 +12,7 @@ from gymnasium.vector import AutoresetMode
 from cwh_envs.vector import CWHDockKOZVectorEnv, CWHRendezvousVectorEnv
 from cwh_envs.wrappers import CBFSafetyFilter
 
-IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v0")
+IDS = ("CWHRendezvous-v0", "CWHDockKOZ-v1")
 N = 5
 
 
@@ -27,7 +27,7 @@ def starts(env_id, seed=0):
     env = make_native(env_id)
     env.reset(seed=seed)
     options = {"initial_state": env.unwrapped.states}
-    if env_id == "CWHDockKOZ-v0":
+    if env_id == "CWHDockKOZ-v1":
         options["goal"] = env.unwrapped.goals
     return options
 
@@ -62,7 +62,7 @@ def test_make_vec_builds_the_native_env_with_next_step_autoreset(env_id):
 
 @pytest.mark.parametrize(
     ("env_id", "cbf"),
-    [("CWHRendezvous-v0", False), ("CWHDockKOZ-v0", False), ("CWHDockKOZ-v0", True)],
+    [("CWHRendezvous-v0", False), ("CWHDockKOZ-v1", False), ("CWHDockKOZ-v1", True)],
 )
 def test_native_rows_equal_single_envs_under_sync_vector_env(env_id, cbf):
     """Same starts, same actions: obs, rewards, terminations and the whole info dict agree."""
@@ -118,7 +118,7 @@ def test_next_step_autoreset(env_id):
     np.testing.assert_array_equal(obs[:, -1], 1.0)
     np.testing.assert_array_equal(obs[:, :6], env.unwrapped.states.astype(np.float32))
     assert not terminated.any() and not truncated.any() and (reward == 0.0).all()
-    state_keys = {"distance", "speed"} | ({"clearance", "in_koz"} if env_id == "CWHDockKOZ-v0" else set())
+    state_keys = {"distance", "speed"} | ({"clearance", "in_koz"} if env_id == "CWHDockKOZ-v1" else set())
     assert set(info) == state_keys | {f"_{key}" for key in state_keys}  # exactly the reset info
     obs, reward, terminated, _, info = env.step(np.ones((N, 3), dtype=np.float32))
     assert not terminated.any() and (reward != 0.0).all() and info["_reward_terms"].all()

@@ -22,7 +22,7 @@ def test_gymnasiums_checker_passes_with_the_filter():
         warnings.simplefilter("error")
         # check_env always flags a wrapped env (by design); that one message is the only exemption.
         warnings.filterwarnings("ignore", message=r".*is different from the unwrapped version")
-        check_env(CBFSafetyFilter(gym.make("CWHDockKOZ-v0").unwrapped))
+        check_env(CBFSafetyFilter(gym.make("CWHDockKOZ-v1").unwrapped))
 
 
 @pytest.mark.needs("sb3")
@@ -31,35 +31,35 @@ def test_sb3s_checker_passes_with_the_filter():
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        sb3_check_env(CBFSafetyFilter(gym.make("CWHDockKOZ-v0").unwrapped))
-        sb3_check_env(CBFSafetyFilter(gym.make("CWHDockKOZ-v0")))
+        sb3_check_env(CBFSafetyFilter(gym.make("CWHDockKOZ-v1").unwrapped))
+        sb3_check_env(CBFSafetyFilter(gym.make("CWHDockKOZ-v1")))
 
 
 def test_spec_recreates_the_wrapped_env():
-    env = CBFSafetyFilter(gym.make("CWHDockKOZ-v0"), margin=1.0)
+    env = CBFSafetyFilter(gym.make("CWHDockKOZ-v1"), margin=1.0)
     again = gym.make(env.spec)
     assert isinstance(again, CBFSafetyFilter) and again.margin == 1.0
 
 
 def test_bad_arguments():
     with pytest.raises(ValueError, match="margin"):
-        CBFSafetyFilter(gym.make("CWHDockKOZ-v0"), margin=-0.1)
+        CBFSafetyFilter(gym.make("CWHDockKOZ-v1"), margin=-0.1)
     with pytest.raises(ValueError, match="margin"):
-        CBFSafetyFilter(gym.make("CWHDockKOZ-v0"), margin=float("nan"))
+        CBFSafetyFilter(gym.make("CWHDockKOZ-v1"), margin=float("nan"))
     for not_a_number in (True, np.float64(np.inf), "0.5"):  # a bool is not a number of metres
         with pytest.raises(ValueError, match="margin"):
-            CBFSafetyFilter(gym.make("CWHDockKOZ-v0"), margin=not_a_number)
-    with pytest.raises(TypeError, match="CWHDockKOZ-v0"):
+            CBFSafetyFilter(gym.make("CWHDockKOZ-v1"), margin=not_a_number)
+    with pytest.raises(TypeError, match="CWHDockKOZ env"):
         CBFSafetyFilter(gym.make("CWHRendezvous-v0"))
 
 
 def test_default_margin_is_the_problems():
-    assert CBFSafetyFilter(gym.make("CWHDockKOZ-v0")).margin == 0.5
-    assert CBFSafetyFilter(gym.make("CWHDockKOZ-v0", margin=0.8)).margin == 0.8
+    assert CBFSafetyFilter(gym.make("CWHDockKOZ-v1")).margin == 0.5
+    assert CBFSafetyFilter(gym.make("CWHDockKOZ-v1", margin=0.8)).margin == 0.8
 
 
 def test_filtered_step_is_safe_actions_applied_to_the_model():
-    env = CBFSafetyFilter(gym.make("CWHDockKOZ-v0"), margin=0.5)
+    env = CBFSafetyFilter(gym.make("CWHDockKOZ-v1"), margin=0.5)
     base = env.unwrapped
     a, b = base.problem.matrices()
     env.reset(options=HEAD_ON)
@@ -79,7 +79,7 @@ def test_filtered_step_is_safe_actions_applied_to_the_model():
 
 def test_filter_is_transparent_far_from_the_keep_out():
     start = {"initial_state": np.array([-80.0, 40.0, 10.0, 0.0, 0.0, 0.0]), "goal": np.array([8.0, 0.0, 0.0])}
-    plain, filtered = gym.make("CWHDockKOZ-v0"), CBFSafetyFilter(gym.make("CWHDockKOZ-v0"))
+    plain, filtered = gym.make("CWHDockKOZ-v1"), CBFSafetyFilter(gym.make("CWHDockKOZ-v1"))
     plain.reset(options=start)
     filtered.reset(options=start)
     rng = np.random.default_rng(0)
@@ -99,7 +99,7 @@ def run_batch(policy, cbf_margin: float | None, num_envs: int = 64, head_on: boo
     Returns per-call arrays (H, N) of ``in_koz``, ``clearance`` and ``cbf_infeasible`` and the final info.
     """
     env = gym.make_vec(
-        "CWHDockKOZ-v0", num_envs=num_envs, vectorization_mode="vector_entry_point", cbf_margin=cbf_margin
+        "CWHDockKOZ-v1", num_envs=num_envs, vectorization_mode="vector_entry_point", cbf_margin=cbf_margin
     )
     obs, _ = env.reset(seed=seed)
     if head_on:
@@ -158,7 +158,7 @@ def test_filter_cannot_stop_fast_approaches():
 
 def test_random_rollouts_through_the_wrapper():
     """Random-action episodes from sampled starts through the wrapper: entries follow infeasibility only."""
-    env = CBFSafetyFilter(gym.make("CWHDockKOZ-v0"))
+    env = CBFSafetyFilter(gym.make("CWHDockKOZ-v1"))
     env.action_space.seed(0)
     for episode in range(4):
         env.reset(seed=episode)

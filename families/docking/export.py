@@ -23,7 +23,7 @@ import train
 
 from cwh_envs.onnx_policy import export_checked
 
-ENV_ID = "CWHDockKOZ-v0"
+ENV_ID = "CWHDockKOZ-v1"
 CHECK_ROWS = 1024  # observations the exported file is compared with the torch policy on
 CHECK_TOLERANCE = 1e-4  # largest |action difference| accepted (actions in [-1, 1]); why: docs/examples.md
 
