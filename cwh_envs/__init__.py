@@ -33,7 +33,11 @@ def __getattr__(name: str):
 
 _DOCKING = ("cwh_envs.docking:CWHDockKOZEnv", "cwh_envs.vector:CWHDockKOZVectorEnv")
 _ENVS = {
-    "CWHRendezvous-v0": ("cwh_envs.rendezvous:CWHRendezvousEnv", "cwh_envs.vector:CWHRendezvousVectorEnv", {}),
+    "CWHRendezvous-v0": (
+        "cwh_envs.rendezvous:CWHRendezvousEnv",
+        "cwh_envs.vector:CWHRendezvousVectorEnv",
+        {},
+    ),
     "CWHDockKOZ-v0": (*_DOCKING, {"capture_radius": 0.0}),  # as first released: Gymnasium keeps old ids
     "CWHDockKOZ-v1": (*_DOCKING, {}),
 }

@@ -94,7 +94,9 @@ def cone_axis(goals: np.ndarray) -> np.ndarray:
     return np.where(norm > 0, goals / np.where(norm > 0, norm, 1.0), np.array([1.0, 0.0, 0.0]))
 
 
-def cone_apex(goals: np.ndarray, approach_cone: tuple[float, float], capture_radius: float = 0.0) -> np.ndarray:
+def cone_apex(
+    goals: np.ndarray, approach_cone: tuple[float, float], capture_radius: float = 0.0
+) -> np.ndarray:
     """The cone's apex (N, 3): ``capture_radius / tan(half_angle)`` behind the port on the axis."""
     setback = capture_radius / np.tan(np.radians(approach_cone[0]))
     return goals - setback * cone_axis(goals)

@@ -30,6 +30,7 @@ from cwh_envs.constraints import (
 from cwh_envs.dispersions import EpisodeDispersions
 from cwh_envs.observations import docking_observation, rendezvous_observation
 from cwh_envs.problems import DockingProblem, RendezvousProblem
+from cwh_envs.robust_cbf import robust_safe_actions
 
 # Admissible user-given states (reset options): far beyond the sampled starts, yet small enough
 # that the observation bounds below stay finite. CWH linearisation is meaningless past this anyway.
@@ -137,14 +138,24 @@ def check_goals(goals: Any, problem: DockingProblem, batch: int | None = None) -
 
 
 def filter_actions(
-    actions: np.ndarray, states: np.ndarray, problem: DockingProblem, margin: float, goals: np.ndarray
+    actions: np.ndarray,
+    states: np.ndarray,
+    problem: DockingProblem,
+    margin: float,
+    goals: np.ndarray,
+    bounds=None,
 ):
     """Apply the predictive CBF to normalised actions; returns (safe normalised actions, result).
 
     The keep-out alone (the paper's problem) goes through :func:`cwh_envs.cbf.safe_actions`; with a
     speed limit or an approach cone every barrier goes into one QP,
     :func:`cwh_envs.cbf_multi.safe_actions_multi`, whose result also says what it ``dropped``.
+    With ``bounds`` (:class:`cwh_envs.robust_cbf.ErrorBounds`) the robust filter,
+    :func:`cwh_envs.robust_cbf.robust_safe_actions`, answers instead (its result adds ``margin_scale``).
     """
+    if bounds is not None:
+        result = robust_safe_actions(actions * problem.u_max, states, goals, problem, bounds, margin)
+        return np.clip(np.asarray(result.u) / problem.u_max, -1.0, 1.0), result
     a, b = problem.matrices()
     common = dict(koz_radius=problem.koz_radius, margin=margin, u_max=problem.u_max)
     if not path_constrained(problem):

@@ -96,7 +96,9 @@ class DockingProblem(_Orbit):
         super().__post_init__()
         object.__setattr__(self, "speed_limit", check_speed_limit(self.speed_limit))
         object.__setattr__(self, "approach_cone", check_approach_cone(self.approach_cone))
-        object.__setattr__(self, "capture_radius", check_capture_radius(self.capture_radius, self.approach_cone))
+        object.__setattr__(
+            self, "capture_radius", check_capture_radius(self.capture_radius, self.approach_cone)
+        )
         for name in ("koz_radius", "goal_radius", "success_distance", "success_speed"):
             _positive(name, getattr(self, name))
         if not (_real(self.margin) and self.margin >= 0):

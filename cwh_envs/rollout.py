@@ -68,6 +68,7 @@ class Flight:
     keep_out_depth: np.ndarray | None = None
     speed_depth: np.ndarray | None = None
     cone_depth: np.ndarray | None = None
+    cbf_margin_scale: np.ndarray | None = None
 
 
 def fly(
@@ -80,6 +81,7 @@ def fly(
     dispersions: dict | None = None,
     dispersion_seed: int = 0,
     filter_sees: str = "estimate",
+    cbf_bounds=None,
 ) -> Flight:
     """Fly ``policy`` from every start (N, 6) at once (docking: to ``goals`` (N, 3)) for H steps.
 
@@ -93,6 +95,10 @@ def fly(
     before the box clip; ``thrust`` is then the effective thrust. ``filter_sees="truth"`` feeds the
     filter the true state instead, the flight before flight software's view was modelled (it
     flatters the filter; kept for comparison).
+
+    ``cbf_bounds`` (:class:`cwh_envs.robust_cbf.ErrorBounds`, with ``cbf_margin``) flies the robust
+    filter instead of the nominal one; ``cbf_margin_scale`` (N, H) then says how much of its margin
+    each step kept.
     """
     docking = isinstance(problem, DockingProblem)
     if not docking and not isinstance(problem, RendezvousProblem):
@@ -114,6 +120,8 @@ def fly(
             raise ValueError("rendezvous takes no goals and no CBF filter (it has no keep-out)")
         core = RendezvousCore(problem, RendezvousReward(), n)
     margin = None if cbf_margin is None else check_margin(cbf_margin)
+    if cbf_bounds is not None and margin is None:
+        raise ValueError("cbf_bounds sizes the filter's margins: it needs cbf_margin (the filter) too")
     if filter_sees not in FILTER_SEES:
         raise ValueError(f"filter_sees must be one of {FILTER_SEES}, got {filter_sees!r}")
     horizon = problem.horizon
@@ -129,6 +137,7 @@ def fly(
     infeasible = np.zeros((n, horizon), dtype=bool) if margin is not None else None
     several = docking and path_constrained(problem)  # the filter then says what it dropped
     dropped = np.zeros((n, horizon, 3), dtype=bool) if margin is not None and several else None
+    kept = np.ones((n, horizon)) if cbf_bounds is not None else None
     states[:, 0] = core.states
     final = None
     for k in range(horizon):
@@ -136,10 +145,12 @@ def fly(
         actions = check_actions(policy(observed), (n, 3))
         if margin is not None:
             seen = core.states if nav is None or filter_sees == "truth" else core.states + nav[:, k]
-            actions, result = filter_actions(actions, seen, problem, margin, core.goals)
+            actions, result = filter_actions(actions, seen, problem, margin, core.goals, cbf_bounds)
             active[:, k], infeasible[:, k] = result.active, result.infeasible
             if dropped is not None:
                 dropped[:, k] = result.dropped
+            if kept is not None:
+                kept[:, k] = result.margin_scale
         if gains is not None:
             actions = np.clip(np.einsum("nij,nj->ni", gains, actions), -1.0, 1.0)
         thrust[:, k] = actions * problem.u_max  # exactly what the core applies
@@ -162,6 +173,7 @@ def fly(
         cbf_active=active,
         cbf_infeasible=infeasible,
         cbf_dropped=dropped,
+        cbf_margin_scale=kept,
     )
 
 

@@ -12,6 +12,7 @@ from cwh_envs.cbf_multi import BARRIERS
 from cwh_envs.core import check_margin, filter_actions
 from cwh_envs.dispersions import FILTER_SEES
 from cwh_envs.docking import CWHDockKOZEnv
+from cwh_envs.robust_cbf import ErrorBounds
 
 
 class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
@@ -55,10 +56,22 @@ class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
         margin: standoff ``delta`` in metres added to the keep-out radius; ``None`` (default) uses
             the env's ``problem.margin`` (0.5 m, the paper's value). Negative raises ``ValueError``.
         sees: ``"estimate"`` (default) or ``"truth"``: the state the filter acts on.
+        bounds: a :class:`cwh_envs.robust_cbf.ErrorBounds` for the robust filter (margins sized from
+            declared error bounds; ``info["cbf_margin_scale"]`` says how much of them each step
+            kept), or ``None`` (default) for the nominal one.
     """
 
-    def __init__(self, env: gym.Env, margin: float | None = None, sees: str = "estimate") -> None:
-        gym.utils.RecordConstructorArgs.__init__(self, margin=margin, sees=sees)
+    def __init__(
+        self,
+        env: gym.Env,
+        margin: float | None = None,
+        sees: str = "estimate",
+        bounds: ErrorBounds | None = None,
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(self, margin=margin, sees=sees, bounds=bounds)
+        if bounds is not None and not isinstance(bounds, ErrorBounds):
+            raise ValueError(f"bounds must be an ErrorBounds or None, got {bounds!r}")
+        self.bounds = bounds
         gym.ActionWrapper.__init__(self, env)
         if not isinstance(env.unwrapped, CWHDockKOZEnv):
             raise TypeError(
@@ -73,7 +86,9 @@ class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
     def action(self, action: Any) -> np.ndarray:
         base = self.env.unwrapped
         state = base.state if self.sees == "truth" else self.env.get_wrapper_attr("navigation_state")
-        safe, self._last = filter_actions(check_actions(action, (3,)), state, base.problem, self.margin, base.goal)
+        safe, self._last = filter_actions(
+            check_actions(action, (3,)), state, base.problem, self.margin, base.goal, self.bounds
+        )
         return safe  # float64 on purpose: a float32 round-trip would shift the barrier's edit
 
     def step(self, action: Any):
@@ -81,6 +96,8 @@ class CBFSafetyFilter(gym.ActionWrapper, gym.utils.RecordConstructorArgs):
         info["cbf_active"] = bool(self._last.active)
         info["cbf_infeasible"] = bool(self._last.infeasible)
         info["cbf_correction_norm"] = float(self._last.correction_norm)
+        if hasattr(self._last, "margin_scale"):  # the robust filter
+            info["cbf_margin_scale"] = float(self._last.margin_scale)
         if hasattr(self._last, "dropped"):  # a speed limit or an approach cone: several barriers
             info["cbf_dropped"] = tuple(
                 name for name, out in zip(BARRIERS, self._last.dropped, strict=True) if out

@@ -7,7 +7,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import cwh_envs  # noqa: F401  (registers the ids)
+import cwh_envs
 from cwh_envs import splits
 from cwh_envs.constraints import CAPTURE_RADIUS, cone_apex, cone_depth, cone_terms, violation_depths
 from cwh_envs.dispersions import Dispersions
@@ -28,10 +28,10 @@ def hold(env_id, state, **kwargs):
 
 @pytest.mark.filterwarnings("ignore:.*CWHDockKOZ-v0 is out of date")
 def test_a_chaser_beside_the_axis_at_the_port_is_captured_under_v1_and_outside_the_cone_under_v0():
-    beside = [*(GOAL + [0.002, 0.05, 0.0]), 0, 0, 0]  # 5 cm off the axis, 2 mm out from the port
+    beside = [*([*GOAL, 0.002, 0.05, 0.0]), 0, 0, 0]  # 5 cm off the axis, 2 mm out from the port
     assert hold("CWHDockKOZ-v0", beside)["cost_cone"] == 1.0
     assert hold("CWHDockKOZ-v1", beside)["cost_cone"] == 0.0
-    wide = [*(GOAL + [0.002, 0.15, 0.0]), 0, 0, 0]  # 15 cm off: beyond the 0.1 m envelope
+    wide = [*([*GOAL, 0.002, 0.15, 0.0]), 0, 0, 0]  # 15 cm off: beyond the 0.1 m envelope
     assert hold("CWHDockKOZ-v1", wide)["cost_cone"] == 1.0
     assert gym.make("CWHDockKOZ-v1").unwrapped.problem.capture_radius == CAPTURE_RADIUS == 0.1
 
@@ -40,7 +40,7 @@ def test_the_corridor_is_capture_radius_wide_at_the_port():
     problem = DockingProblem(approach_cone=CONE, capture_radius=0.2)
     apex = cone_apex(GOAL[None], CONE, 0.2)[0]
     np.testing.assert_allclose(apex, GOAL - [0.2 / np.tan(np.radians(30.0)), 0, 0])
-    at_port = np.array([[*(GOAL + [0.0, r, 0.0]), 0, 0, 0] for r in (0.199, 0.201)])
+    at_port = np.array([[*([*GOAL, 0.0, r, 0.0]), 0, 0, 0] for r in (0.199, 0.201)])
     _, slack, _ = cone_terms(at_port, np.tile(GOAL, (2, 1)), CONE, problem.capture_radius)
     assert slack[0] > 0 > slack[1]
 
@@ -51,9 +51,9 @@ def test_cone_depth_is_the_euclidean_distance_to_the_corridor():
     points = np.array(
         [
             [*(GOAL + 2.0 * np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0])), 0, 0, 0],
-            [*(GOAL + [-3.0, 0.0, 0.0]), 0, 0, 0],
-            [*(GOAL + [5.0, 1.0, 0.0]), 0, 0, 0],
-            [*(GOAL + [0.0, 20.0, 0.0]), 0, 0, 0],
+            [*([*GOAL, -3.0, 0.0, 0.0]), 0, 0, 0],
+            [*([*GOAL, 5.0, 1.0, 0.0]), 0, 0, 0],
+            [*([*GOAL, 0.0, 20.0, 0.0]), 0, 0, 0],
         ]
     )
     depth = cone_depth(points, goals, CONE)
@@ -73,7 +73,9 @@ def test_every_constraint_reports_its_deepest_violation_at_the_episode_end():
         for name, depth in violation_depths(state, GOAL[None], problem).items():
             deepest[name] = max(deepest[name], float(depth[0]))
     assert all(value > 0 for value in deepest.values())
-    assert info["keep_out_depth"] == pytest.approx(deepest["keep_out"]) == pytest.approx(-info["min_clearance"])
+    assert (
+        info["keep_out_depth"] == pytest.approx(deepest["keep_out"]) == pytest.approx(-info["min_clearance"])
+    )
     assert info["speed_depth"] == pytest.approx(deepest["speed"]) == pytest.approx(-info["min_speed_margin"])
     assert info["cone_depth"] == pytest.approx(deepest["cone"])
 
@@ -98,7 +100,12 @@ def test_the_capture_radius_is_scoring_only_so_the_shipped_splits_serve_every_en
 
 @pytest.mark.parametrize(
     ("capture", "message"),
-    [(-0.1, "finite number of metres >= 0"), (float("nan"), "finite"), (True, "finite"), (15.0, "zone radius")],
+    [
+        (-0.1, "finite number of metres >= 0"),
+        (float("nan"), "finite"),
+        (True, "finite"),
+        (15.0, "zone radius"),
+    ],
 )
 def test_a_bad_capture_radius_is_refused_by_name(capture, message):
     with pytest.raises(ValueError, match=f"capture_radius.*{message}"):
@@ -116,17 +123,26 @@ def flights_under_noise():
     pool = start_pool("docking", 3, problem)
     law = lambda obs: pd_action(obs, problem)  # noqa: E731
     common = dict(cbf_margin=0.5, dispersions=NAV, dispersion_seed=7)
-    return problem, pool, law, {
-        sees: fly(problem, law, pool.starts, pool.goals, filter_sees=sees, **common) for sees in ("estimate", "truth")
-    }
+    return (
+        problem,
+        pool,
+        law,
+        {
+            sees: fly(problem, law, pool.starts, pool.goals, filter_sees=sees, **common)
+            for sees in ("estimate", "truth")
+        },
+    )
 
 
 def test_under_noise_the_filter_acts_on_the_estimate_and_truth_is_an_explicit_comparison():
-    problem, pool, law, flights = flights_under_noise()
+    _problem, pool, law, flights = flights_under_noise()
     assert np.abs(flights["estimate"].states - flights["truth"].states).max() > 1e-6
     for sees, wrapped in (
         ("estimate", lambda: cwh_envs.CBFSafetyFilter(Dispersions(gym.make("CWHDockKOZ-v1"), **NAV))),
-        ("truth", lambda: cwh_envs.CBFSafetyFilter(Dispersions(gym.make("CWHDockKOZ-v1"), **NAV), sees="truth")),
+        (
+            "truth",
+            lambda: cwh_envs.CBFSafetyFilter(Dispersions(gym.make("CWHDockKOZ-v1"), **NAV), sees="truth"),
+        ),
         ("estimate", lambda: cwh_envs.CBFSafetyFilter(gym.make("CWHDockKOZ-v1", dispersions=NAV))),
     ):
         env = wrapped()

@@ -1,0 +1,148 @@
+"""Issue 58, item 3: the robust multi-constraint filter (cwh_envs.robust_cbf). Its one-step promise,
+tried on many draws: wherever it keeps its full margin, the true plant under any error inside the
+declared bounds keeps every constraint."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cwh_envs.cbf import safe_actions
+from cwh_envs.constraints import cone_axis, cone_terms, speed_margin
+from cwh_envs.dispersions import _rotation
+from cwh_envs.dynamics import apply
+from cwh_envs.problems import DockingProblem
+from cwh_envs.robust_cbf import ErrorBounds, robust_safe_actions
+
+PROBLEM = DockingProblem(speed_limit=(0.01, 2 * DockingProblem().n), approach_cone=(30.0, 15.0))
+ONE_SIGMA = dict(thrust_scale=0.02, misalignment_deg=1.0, mass=0.02, nav_position=0.05, nav_velocity=5e-4)
+
+
+def approach_states(rng, n, goals):
+    """Chasers inside the scored corridor, 0.5-14 m from the port, closing at up to the speed limit."""
+    axis = cone_axis(goals)
+    distance = rng.uniform(0.5, 14.0, n)
+    lateral = rng.normal(size=(n, 3))
+    lateral -= np.einsum("ni,ni->n", lateral, axis)[:, None] * axis
+    lateral /= np.linalg.norm(lateral, axis=1, keepdims=True)
+    off = rng.uniform(0.0, 0.45, n) * distance  # tan(30 deg) = 0.577: inside the cone
+    positions = goals + distance[:, None] * axis + off[:, None] * lateral
+    limit = 0.01 + PROBLEM.speed_limit[1] * np.linalg.norm(positions - goals, axis=1)
+    velocity = -rng.uniform(0.0, 0.6, n)[:, None] * limit[:, None] * axis
+    return np.concatenate([positions, velocity], axis=1)
+
+
+def inside_ball(rng, n, radius):
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True) * (radius * rng.uniform(0, 1, n) ** (1 / 3))[:, None]
+
+
+def plant_gains(rng, n, bounds):
+    k = bounds.k_sigma
+    out = np.empty((n, 3, 3))
+    for i in range(n):
+        scale = 1 + rng.uniform(-1, 1) * k * bounds.thrust_scale
+        mass = 1 + rng.uniform(-1, 1) * k * bounds.mass
+        axis = rng.normal(size=3)
+        angle = np.radians(rng.uniform(-1, 1) * k * bounds.misalignment_deg)
+        out[i] = scale / mass * _rotation(axis / np.linalg.norm(axis), angle)
+    return out
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_within_the_bounds_no_constraint_breaks_where_the_full_margin_was_kept(seed):
+    rng = np.random.default_rng(seed)
+    n = 4000
+    bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
+    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
+    states = approach_states(rng, n, goals)
+    # Any navigation error whose component along every normal is within k sigmas: a ball.
+    k = bounds.k_sigma
+    nav = np.concatenate([inside_ball(rng, n, k * 0.05), inside_ball(rng, n, k * 5e-4)], axis=1)
+    nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
+    result = robust_safe_actions(nominal, states + nav, goals, PROBLEM, bounds)
+    applied = np.clip(np.einsum("nij,nj->ni", plant_gains(rng, n, bounds), result.u), -2.0, 2.0)
+    a, b = PROBLEM.matrices()
+    after = apply(a, states) + apply(b, applied)
+    two = apply(a, after) + apply(b, applied)
+    kept = result.margin_scale == 1.0
+    assert kept.mean() > 0.9  # the promise covers most draws, not a vacuous few
+    assert np.all(np.linalg.norm(two[kept, :3], axis=1) >= PROBLEM.koz_radius + PROBLEM.margin - 1e-9)
+    assert np.all(speed_margin(after[kept], goals[kept], PROBLEM.speed_limit) >= -1e-7)
+    region, slack, _ = cone_terms(two[kept], goals[kept], PROBLEM.approach_cone, PROBLEM.capture_radius)
+    assert np.all(~region | (slack >= -1e-7))
+
+
+def test_the_nominal_filter_under_the_same_draws_breaks_them():
+    """The property above is not vacuous: the nominal filter on the estimate fails it."""
+    from cwh_envs.cbf_multi import safe_actions_multi
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
+    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
+    states = approach_states(rng, n, goals)
+    nav = np.concatenate([inside_ball(rng, n, 0.15), inside_ball(rng, n, 1.5e-3)], axis=1)
+    nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
+    a, b = PROBLEM.matrices()
+    result = safe_actions_multi(
+        nominal, states + nav, goals, a, b, koz_radius=5.0, margin=0.5, u_max=2.0,
+        speed_limit=PROBLEM.speed_limit, approach_cone=PROBLEM.approach_cone,
+    )  # fmt: skip
+    applied = np.clip(np.einsum("nij,nj->ni", plant_gains(rng, n, bounds), result.u), -2.0, 2.0)
+    after = apply(a, states) + apply(b, applied)
+    assert np.any(speed_margin(after, goals, PROBLEM.speed_limit) < -1e-7)
+
+
+def test_zero_bounds_on_the_keep_out_problem_is_the_nominal_filter():
+    rng = np.random.default_rng(3)
+    problem = DockingProblem()
+    n = 2000
+    states = np.concatenate([rng.uniform(-12, 12, (n, 3)), rng.normal(0, 0.1, (n, 3))], axis=1)
+    states = states[np.linalg.norm(states[:, :3], axis=1) > 5.6]
+    nominal = rng.uniform(-3, 3, (len(states), 3))
+    a, b = problem.matrices()
+    robust = robust_safe_actions(
+        nominal, states, [*np.zeros((len(states), 3)), 8, 0, 0], problem, ErrorBounds()
+    )
+    plain = safe_actions(nominal, states, a, b, koz_radius=5.0, margin=0.5, u_max=2.0)
+    feasible = ~plain.infeasible
+    np.testing.assert_allclose(robust.u[feasible], plain.u[feasible], atol=1e-9)
+    assert np.all(robust.margin_scale[feasible] == 1.0)
+
+
+def test_where_the_margin_cannot_be_kept_it_says_so_and_answers_by_less_of_it():
+    # At the port the eroded cone's apex (3 sigma: 0.18 m in front) leaves no room: the filter keeps
+    # less margin, says how much, and still answers (never the stale or the raw action by default).
+    bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
+    goal = np.array([8.0, 0.0, 0.0])
+    at_port = np.array([8.02, 0.0, 0.0, -0.005, 0.0, 0.0])
+    result = robust_safe_actions(np.zeros(3), at_port, goal, PROBLEM, bounds)
+    assert result.margin_scale < 1.0 and result.infeasible
+    assert np.all(np.abs(result.u) <= PROBLEM.u_max)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"nav_position": -0.1}, "nav_position must be a finite number >= 0"),
+        ({"thrust_scale": float("nan")}, "thrust_scale must be a finite"),
+        ({"k_sigma": float("inf")}, "k_sigma must be a finite"),
+        ({"mass": True}, "mass must be a finite"),
+        ({"mass": 0.4, "k_sigma": 3.0}, "reaches 100 %"),
+    ],
+)
+def test_bad_bounds_are_refused_by_name(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ErrorBounds(**kwargs)
+
+
+def test_bad_calls_are_refused():
+    with pytest.raises(ValueError, match="bounds must be an ErrorBounds"):
+        robust_safe_actions(np.zeros(3), np.ones(6) * 20, np.array([8.0, 0, 0]), PROBLEM, {"nav_position": 1})
+    with pytest.raises(ValueError, match="finite"):
+        robust_safe_actions(
+            np.full(3, np.nan), np.ones(6) * 20, np.array([8.0, 0, 0]), PROBLEM, ErrorBounds()
+        )
+    with pytest.raises(ValueError, match="unknown dispersion"):
+        ErrorBounds.from_dispersions({"wind": 1.0})
