@@ -19,6 +19,11 @@ GOAL = np.array([8.0, 0.0, 0.0])  # the docking axis is +x
 CONSTRAINED = dict(speed_limit=(0.01, 2 * DockingProblem().n), approach_cone=CONE)
 
 
+def at(dx, dy, dz):
+    """A chaser at rest at GOAL + (dx, dy, dz)."""
+    return np.r_[GOAL + np.array([dx, dy, dz]), 0.0, 0.0, 0.0]
+
+
 def hold(env_id, state, **kwargs):
     """The info after one coasting step from ``state`` (a chaser at rest stays within 1e-3 m)."""
     env = gym.make(env_id, approach_cone=CONE, **kwargs)
@@ -28,10 +33,10 @@ def hold(env_id, state, **kwargs):
 
 @pytest.mark.filterwarnings("ignore:.*CWHDockKOZ-v0 is out of date")
 def test_a_chaser_beside_the_axis_at_the_port_is_captured_under_v1_and_outside_the_cone_under_v0():
-    beside = [*([*GOAL, 0.002, 0.05, 0.0]), 0, 0, 0]  # 5 cm off the axis, 2 mm out from the port
+    beside = at(0.002, 0.05, 0.0)  # 5 cm off the axis, 2 mm out from the port
     assert hold("CWHDockKOZ-v0", beside)["cost_cone"] == 1.0
     assert hold("CWHDockKOZ-v1", beside)["cost_cone"] == 0.0
-    wide = [*([*GOAL, 0.002, 0.15, 0.0]), 0, 0, 0]  # 15 cm off: beyond the 0.1 m envelope
+    wide = at(0.002, 0.15, 0.0)  # 15 cm off: beyond the 0.1 m envelope
     assert hold("CWHDockKOZ-v1", wide)["cost_cone"] == 1.0
     assert gym.make("CWHDockKOZ-v1").unwrapped.problem.capture_radius == CAPTURE_RADIUS == 0.1
 
@@ -40,7 +45,7 @@ def test_the_corridor_is_capture_radius_wide_at_the_port():
     problem = DockingProblem(approach_cone=CONE, capture_radius=0.2)
     apex = cone_apex(GOAL[None], CONE, 0.2)[0]
     np.testing.assert_allclose(apex, GOAL - [0.2 / np.tan(np.radians(30.0)), 0, 0])
-    at_port = np.array([[*([*GOAL, 0.0, r, 0.0]), 0, 0, 0] for r in (0.199, 0.201)])
+    at_port = np.array([at(0.0, r, 0.0) for r in (0.199, 0.201)])
     _, slack, _ = cone_terms(at_port, np.tile(GOAL, (2, 1)), CONE, problem.capture_radius)
     assert slack[0] > 0 > slack[1]
 
@@ -50,10 +55,10 @@ def test_cone_depth_is_the_euclidean_distance_to_the_corridor():
     # From the apex at GOAL (capture 0): 45 degrees off at 2 m; behind the apex; inside; out of the zone.
     points = np.array(
         [
-            [*(GOAL + 2.0 * np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0])), 0, 0, 0],
-            [*([*GOAL, -3.0, 0.0, 0.0]), 0, 0, 0],
-            [*([*GOAL, 5.0, 1.0, 0.0]), 0, 0, 0],
-            [*([*GOAL, 0.0, 20.0, 0.0]), 0, 0, 0],
+            np.r_[GOAL + 2.0 * np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0]), 0, 0, 0],
+            at(-3.0, 0.0, 0.0),
+            at(5.0, 1.0, 0.0),
+            at(0.0, 20.0, 0.0),
         ]
     )
     depth = cone_depth(points, goals, CONE)

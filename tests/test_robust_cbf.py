@@ -103,7 +103,7 @@ def test_zero_bounds_on_the_keep_out_problem_is_the_nominal_filter():
     nominal = rng.uniform(-3, 3, (len(states), 3))
     a, b = problem.matrices()
     robust = robust_safe_actions(
-        nominal, states, [*np.zeros((len(states), 3)), 8, 0, 0], problem, ErrorBounds()
+        nominal, states, np.tile([8.0, 0.0, 0.0], (len(states), 1)), problem, ErrorBounds()
     )
     plain = safe_actions(nominal, states, a, b, koz_radius=5.0, margin=0.5, u_max=2.0)
     feasible = ~plain.infeasible
