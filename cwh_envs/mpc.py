@@ -42,6 +42,17 @@ approach cone's radius grows by RADIUS_MARGIN, so that a planned point just outs
 does not land inside it, off the cone (measured: a plan on the ball's surface did, on 2 of 3
 starts). The speed limit and the cone's angle are already solved tighter (:mod:`cwh_envs.socp`).
 
+**The robust MPC** (``RecedingHorizon.robust(problem, bounds)``; issue 58) plans against
+constraints tightened by the same declared error bounds as the robust filter
+(:class:`cwh_envs.robust_cbf.ErrorBounds`): the keep-out standoff grows by the k-sigma position
+error of a two-step prediction plus the thrust error at full throttle, the speed limit's ``v0``
+shrinks by the k-sigma speed error of a one-step prediction and its distance term's position error;
+the cone keeps the planner's corridor to the port, already ``capture_radius cos(half_angle)`` (8.7
+cm by default) inside the scored one. A hard re-solve that fails is answered by the soft expert,
+whose exact penalties (Kerrigan and Maciejowski 2000) make every subproblem solvable while keeping
+the hard answer wherever one exists: no stale plans; ``infeasible`` counts the hard failures,
+``soft`` the answers that replaced them, ``fallbacks`` whatever neither answered.
+
 It is a policy on observations like the others: ``mpc = RecedingHorizon(problem)``, then
 ``mpc(obs)`` for (N, obs_dim) or (obs_dim,); a row whose observed time-to-go is 1 starts a new
 episode (its plan is dropped). The observation is float32, so the state it re-plans from is rounded
@@ -59,6 +70,7 @@ from cwh_envs import experts
 from cwh_envs.controllers import MinEnergyFeedback
 from cwh_envs.observations import DOCKING_OBS_DIM
 from cwh_envs.problems import DockingProblem, RendezvousProblem
+from cwh_envs.robust_cbf import ErrorBounds
 
 RADIUS_MARGIN = 1e-3  # m, added to the approach cone's radius in every plan
 ON_FAILURE = ("previous_plan", "soft")  # what a failed re-solve does (module docstring)
@@ -74,7 +86,10 @@ class RecedingHorizon:
     """
 
     def __init__(
-        self, problem: RendezvousProblem | DockingProblem, on_failure: str = "previous_plan"
+        self,
+        problem: RendezvousProblem | DockingProblem,
+        on_failure: str = "previous_plan",
+        bounds: ErrorBounds | None = None,
     ) -> None:
         if on_failure not in ON_FAILURE:
             raise ValueError(f"on_failure must be one of {ON_FAILURE}, got {on_failure!r}")
@@ -82,14 +97,21 @@ class RecedingHorizon:
             raise ValueError(
                 f"problem must be a RendezvousProblem or DockingProblem, got {type(problem).__name__}"
             )
-        self.problem, self.on_failure = problem, on_failure
-        self.planned = problem
+        if bounds is not None and not (isinstance(bounds, ErrorBounds) and isinstance(problem, DockingProblem)):
+            raise ValueError(f"bounds must be an ErrorBounds, on a DockingProblem; got {bounds!r}")
+        self.problem, self.on_failure, self.bounds = problem, on_failure, bounds
+        self.planned = problem if bounds is None else tightened(problem, bounds)
         if isinstance(problem, DockingProblem) and problem.approach_cone is not None:
-            half_angle, radius = problem.approach_cone
-            self.planned = problem.replace(approach_cone=(half_angle, radius + RADIUS_MARGIN))
+            half_angle, radius = self.planned.approach_cone
+            self.planned = self.planned.replace(approach_cone=(half_angle, radius + RADIUS_MARGIN))
         self.law = MinEnergyFeedback(problem)
         self.solve_seconds: list[float] = []
         self._resize(0)
+
+    @classmethod
+    def robust(cls, problem: DockingProblem, bounds: ErrorBounds) -> RecedingHorizon:
+        """The robust MPC (module docstring): tightened plans, every failed re-solve answered softly."""
+        return cls(problem, on_failure="soft", bounds=bounds)
 
     def _resize(self, rows: int) -> None:
         self.plans: list[np.ndarray | None] = [None] * rows
@@ -179,6 +201,23 @@ class RecedingHorizon:
             return None
         self.soft[row] += 1
         return controls
+
+
+def tightened(problem: DockingProblem, bounds: ErrorBounds) -> DockingProblem:
+    """The problem the robust MPC plans (module docstring): a wider keep-out standoff, a lower v0."""
+    a, b = problem.matrices()
+    lever = np.linalg.norm((a @ b + b)[:3], 2)
+    standoff = bounds.navigation(a @ a) + bounds.actuation() * lever * problem.u_max * np.sqrt(3.0)
+    out = problem.replace(margin=problem.margin + standoff)
+    if problem.speed_limit is not None:
+        v0, v1 = problem.speed_limit
+        shrink = bounds.speed(a) + v1 * bounds.navigation(a)
+        if shrink >= v0:
+            raise ValueError(
+                f"the speed margin {shrink:.3g} m/s of these bounds leaves no speed at the port (v0 = {v0:g} m/s)"
+            )
+        out = out.replace(speed_limit=(v0 - shrink, v1))
+    return out
 
 
 def _solve(obs: np.ndarray, problem, warm, docking: bool, soft: bool) -> np.ndarray:

@@ -62,9 +62,13 @@ def test_the_speed_limit_costs_each_step_over_it():
         ([0.0, 20.0, 0.0], False, False),  # outside the region: the cone does not apply
     ],
 )
-@pytest.mark.parametrize(("env_id", "setback"), [("CWHDockKOZ-v0", 0.0), ("CWHDockKOZ-v1", 0.1 / np.tan(np.radians(30)))])
+@pytest.mark.parametrize(
+    ("env_id", "setback"), [("CWHDockKOZ-v0", 0.0), ("CWHDockKOZ-v1", 0.1 / np.tan(np.radians(30)))]
+)
 def test_the_approach_cone_costs_a_step_in_its_region_outside_it(offset, region, broken, env_id, setback):
-    env, _, _, info = stepped([*(GOAL + offset), 0, 0, 0], env_id=env_id, approach_cone=LIMITS["approach_cone"])
+    env, _, _, info = stepped(
+        [*(GOAL + offset), 0, 0, 0], env_id=env_id, approach_cone=LIMITS["approach_cone"]
+    )
     r = env.unwrapped._core.states[0, :3]  # one coasting step moves it a little
     apex = GOAL - [setback, 0.0, 0.0]  # v1: the capture envelope sets the apex behind the port
     angle = np.degrees(np.arccos((r - apex)[0] / np.linalg.norm(r - apex)))
