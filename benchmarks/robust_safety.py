@@ -36,7 +36,9 @@ ROOT = Path(__file__).resolve().parents[1]
 # The docking families' DISPERSIONS (families/docking*/train.py), 1 sigma.
 ONE_SIGMA = dict(thrust_scale=0.02, misalignment_deg=1.0, mass=0.02, nav_position=0.05, nav_velocity=5e-4)
 PROBLEMS = {
-    "docking-constrained": DockingProblem(speed_limit=(0.01, 2 * DockingProblem().n), approach_cone=(30.0, 15.0)),
+    "docking-constrained": DockingProblem(
+        speed_limit=(0.01, 2 * DockingProblem().n), approach_cone=(30.0, 15.0)
+    ),
     "docking": DockingProblem(),
 }
 DISPERSION_SEED = 0
@@ -103,8 +105,14 @@ def measure(problem, row: dict, starts, goals, energy) -> dict:
     for level, scale in (("1σ", 1.0), ("3σ", 3.0)):
         spreads = {k: v * scale for k, v in ONE_SIGMA.items()}
         policy = row["make"]()
-        flight = fly(problem, policy, starts, goals, dispersions=spreads, dispersion_seed=DISPERSION_SEED, **row["fly"])
-        out[level] = {"success": float(flight.is_success.mean()), **violations(problem, flight), **counters(policy)}
+        flight = fly(
+            problem, policy, starts, goals, dispersions=spreads, dispersion_seed=DISPERSION_SEED, **row["fly"]
+        )
+        out[level] = {
+            "success": float(flight.is_success.mean()),
+            **violations(problem, flight),
+            **counters(policy),
+        }
     out["us_per_step"] = time_per_step(problem, row, starts, goals)
     return out
 
@@ -119,7 +127,9 @@ def violations(problem, flight) -> dict:
         out["deepest"][name] = float(depth.max())
     if flight.cone_depth is not None and flight.cone_depth.max() > 0:
         i = int(np.argmax(flight.cone_depth))
-        depth = violation_depths(flight.states[i], np.tile(flight.goals[i], (len(flight.states[i]), 1)), problem)
+        depth = violation_depths(
+            flight.states[i], np.tile(flight.goals[i], (len(flight.states[i]), 1)), problem
+        )
         k = int(np.argmax(depth["cone"]))
         out["deepest_cone_from_port_m"] = float(np.linalg.norm(flight.states[i, k, :3] - flight.goals[i]))
     return out
@@ -166,7 +176,9 @@ def markdown(task: str, results: list[dict], command: str) -> str:
             m = r[level]
             cells.append(f"{m['success']:.1%}")
             cells.append(" / ".join(str(m["breaking"].get(c, "–")) for c in CONSTRAINTS))
-            cells.append(" / ".join(f"{m['deepest'][c]:.3g}" if c in m["deepest"] else "–" for c in CONSTRAINTS))
+            cells.append(
+                " / ".join(f"{m['deepest'][c]:.3g}" if c in m["deepest"] else "–" for c in CONSTRAINTS)
+            )
         cells.append(f"{r['us_per_step']:,.0f}")
         lines.append("| " + " | ".join(cells) + " |")
     mpc = [r for r in results if "solves" in r["nominal"]]
@@ -178,7 +190,11 @@ def markdown(task: str, results: list[dict], command: str) -> str:
                 for level in ("nominal", "1σ", "3σ")
             ]
             lines.append(f"- {r['controller']}: " + "; ".join(parts))
-    where = [(r["controller"], r[level].get("deepest_cone_from_port_m"), level) for r in results for level in ("1σ", "3σ")]
+    where = [
+        (r["controller"], r[level].get("deepest_cone_from_port_m"), level)
+        for r in results
+        for level in ("1σ", "3σ")
+    ]
     where = [w for w in where if w[1] is not None]
     if where:
         lines += ["", "Where the deepest cone violation sat (distance from the port):", ""]

@@ -97,7 +97,9 @@ class RecedingHorizon:
             raise ValueError(
                 f"problem must be a RendezvousProblem or DockingProblem, got {type(problem).__name__}"
             )
-        if bounds is not None and not (isinstance(bounds, ErrorBounds) and isinstance(problem, DockingProblem)):
+        if bounds is not None and not (
+            isinstance(bounds, ErrorBounds) and isinstance(problem, DockingProblem)
+        ):
             raise ValueError(f"bounds must be an ErrorBounds, on a DockingProblem; got {bounds!r}")
         self.problem, self.on_failure, self.bounds = problem, on_failure, bounds
         self.planned = problem if bounds is None else tightened(problem, bounds)

@@ -18,7 +18,9 @@ BOUNDS = ErrorBounds(thrust_scale=0.02, misalignment_deg=1.0, mass=0.02, nav_pos
 def test_the_plans_are_tightened_by_the_bounds_and_zero_bounds_tighten_nothing():
     planned = tightened(PROBLEM, BOUNDS)
     a, _ = PROBLEM.matrices()
-    assert planned.margin - PROBLEM.margin > BOUNDS.navigation(a @ a) > 0.05 * 3  # at least the k-sigma nav error
+    assert (
+        planned.margin - PROBLEM.margin > BOUNDS.navigation(a @ a) > 0.05 * 3
+    )  # at least the k-sigma nav error
     assert 0 < planned.speed_limit[0] < PROBLEM.speed_limit[0] - 3 * 5e-4
     assert planned.approach_cone == PROBLEM.approach_cone
     assert tightened(PROBLEM, ErrorBounds()) == PROBLEM
