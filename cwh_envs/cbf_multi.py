@@ -251,10 +251,10 @@ def _linearised(u0, states, goals, a, b, dropped, u_max, terms):
         todo = todo[moved]
         if not len(todo):
             break
-    return u, feasible & ~np.any(_held(states, goals, u, a, b, terms)[1] & ~dropped, axis=1)
+    return u, feasible & ~np.any(broken_when_held(states, goals, u, a, b, terms)[1] & ~dropped, axis=1)
 
 
-def _held(states, goals, u, a, b, terms) -> tuple[np.ndarray, np.ndarray]:
+def broken_when_held(states, goals, u, a, b, terms) -> tuple[np.ndarray, np.ndarray]:
     """Which barriers apply to the held action ``u`` and which it breaks, each (N, 3) bool, from the
     exact prediction: the speed limit at ``x_{t+1}`` (beyond SPEED_TOLERANCE), the cone at ``x_{t+2}``
     within its radius (beyond CONE_SLACK). The keep-out always applies and is never counted broken
@@ -273,6 +273,26 @@ def _held(states, goals, u, a, b, terms) -> tuple[np.ndarray, np.ndarray]:
     return applies, broken
 
 
+def check_filter_inputs(u_nominal, states, goals, state_name: str = "states"):
+    """(u_nominal, states, goals) as float64 (N, 3), (N, 6), (N, 3) and whether one instance came in
+    1-D; a shape or a non-finite entry raises ValueError naming it (``state_name``: what the states are)."""
+    u_nominal = np.asarray(u_nominal, dtype=np.float64)
+    states = np.asarray(states, dtype=np.float64)
+    goals = np.asarray(goals, dtype=np.float64)
+    if (
+        states.shape[-1] != 6
+        or states.ndim > 2
+        or not (u_nominal.shape == goals.shape == (*states.shape[:-1], 3))
+    ):
+        raise ValueError(
+            f"{state_name} must be (6,) or (N, 6), u_nominal and goals (3,) or (N, 3) alike, got "
+            f"{states.shape}, {u_nominal.shape} and {goals.shape}"
+        )
+    if not all(np.all(np.isfinite(x)) for x in (states, u_nominal, goals)):
+        raise ValueError(f"{state_name}, u_nominal and goals must be finite, got NaN/inf entries")
+    return np.atleast_2d(u_nominal), np.atleast_2d(states), np.atleast_2d(goals), states.ndim == 1
+
+
 def safe_actions_multi(
     u_nominal,
     states,
@@ -287,24 +307,9 @@ def safe_actions_multi(
     approach_cone: tuple[float, float] | None = None,
 ) -> MultiCBFResult:
     """Filter nominal thrust (N, 3) [N] at states (N, 6) docking at goals (N, 3); 1-D in, 1-D out."""
-    u_nominal = np.asarray(u_nominal, dtype=np.float64)
-    states = np.asarray(states, dtype=np.float64)
-    goals = np.asarray(goals, dtype=np.float64)
-    single = states.ndim == 1
-    if (
-        states.shape[-1] != 6
-        or states.ndim > 2
-        or not (u_nominal.shape == goals.shape == (*states.shape[:-1], 3))
-    ):
-        raise ValueError(
-            f"states must be (6,) or (N, 6), u_nominal and goals (3,) or (N, 3) alike, got "
-            f"{states.shape}, {u_nominal.shape} and {goals.shape}"
-        )
-    if not all(np.all(np.isfinite(x)) for x in (states, u_nominal, goals)):
-        raise ValueError("states, u_nominal and goals must be finite, got NaN/inf entries")
+    u0, states, goals, single = check_filter_inputs(u_nominal, states, goals)
     if not (np.isfinite(u_max) and u_max > 0):
         raise ValueError(f"u_max must be a positive finite number, got {u_max!r}")
-    states, goals, u0 = np.atleast_2d(states), np.atleast_2d(goals), np.atleast_2d(u_nominal)
     base = np.clip(u0, -u_max, u_max)
     terms = dict(koz_radius=koz_radius, margin=margin, speed_limit=speed_limit, approach_cone=approach_cone)
     u = base.copy()
@@ -321,7 +326,9 @@ def safe_actions_multi(
     if len(stuck):  # the keep-out alone is infeasible: the thrust that best satisfies it
         beta, rho = barrier_terms(states[stuck], a, b, koz_radius + margin)
         u[stuck] = project_halfspace_box(u0[stuck], beta, rho, u_max).u
-    dropped &= _held(states, goals, u, a, b, terms)[0]  # a barrier that does not apply was not given up
+    dropped &= broken_when_held(states, goals, u, a, b, terms)[
+        0
+    ]  # a barrier that does not apply was not given up
     correction = np.linalg.norm(u - base, axis=1)
     infeasible = np.any(dropped, axis=1)
     infeasible[stuck] = True

@@ -22,10 +22,10 @@ from cwh_envs.cbf_multi import safe_actions_multi
 from cwh_envs.constraints import (
     CONE_TOLERANCE,
     SPEED_TOLERANCE,
+    cone_depth,
     cone_terms,
     path_constrained,
     speed_margin,
-    violation_depths,
 )
 from cwh_envs.dispersions import EpisodeDispersions
 from cwh_envs.observations import docking_observation, rendezvous_observation
@@ -282,8 +282,9 @@ class DockingCore(RendezvousCore):
         ]
         self.broken = {name: np.zeros(num_envs, dtype=np.int64) for name in self.extra}
         self.least = {name: np.full(num_envs, np.inf) for name in self.extra}
-        # The deepest violation of each constraint over x_1 .. x_H (cwh_envs.constraints.violation_depths).
-        self.depth = {name: np.zeros(num_envs) for name in ("keep_out", *self.extra)}
+        # The cone's deepest violation over x_1 .. x_H, m; the keep-out's and the speed limit's follow
+        # from min_clearance and least["speed"] (cwh_envs.constraints.violation_depths).
+        self.cone_depth = np.zeros(num_envs)
 
     def start(self, rows: Any, states: np.ndarray, goals: np.ndarray | None = None) -> None:
         super().start(rows, states, goals)
@@ -292,8 +293,7 @@ class DockingCore(RendezvousCore):
         for name in self.extra:
             self.broken[name][rows] = 0
             self.least[name][rows] = np.inf
-        for depth in self.depth.values():
-            depth[rows] = 0.0
+        self.cone_depth[rows] = 0.0
 
     def observe(self) -> np.ndarray:
         return docking_observation(self.states, self.goals, self.steps, self.problem.horizon)
@@ -327,8 +327,11 @@ class DockingCore(RendezvousCore):
     def _accumulate(self, info: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         self.violations += info["in_koz"]
         np.minimum(self.min_clearance, info["clearance"], out=self.min_clearance)
-        for name, depth in violation_depths(self.states, self.goals, self.problem).items():
-            np.maximum(self.depth[name], depth, out=self.depth[name])
+        if "cone" in self.extra:
+            depth = cone_depth(
+                self.states, self.goals, self.problem.approach_cone, self.problem.capture_radius
+            )
+            np.maximum(self.cone_depth, depth, out=self.cone_depth)
         costs = {"cost_keep_out": info["in_koz"].astype(np.float64)}
         for name, (broken, margin) in self._broken(info).items():
             self.broken[name] += broken
@@ -352,12 +355,15 @@ class DockingCore(RendezvousCore):
         final["is_success"] &= self.violations == 0
         final["violation_rate"] = self.violations / self.problem.horizon
         final["min_clearance"] = self.min_clearance.copy()
-        for name, depth in self.depth.items():
-            final[f"{name}_depth"] = depth.copy()
+        final["keep_out_depth"] = np.maximum(-self.min_clearance, 0.0)
         for name in self.extra:
             final["is_success"] &= self.broken[name] == 0
             final[f"{name}_violation_rate"] = self.broken[name] / self.problem.horizon
             final[f"min_{name}_margin"] = self.least[name].copy()
+        if "speed" in self.extra:
+            final["speed_depth"] = np.maximum(-self.least["speed"], 0.0)
+        if "cone" in self.extra:
+            final["cone_depth"] = self.cone_depth.copy()
         return final
 
 

@@ -209,11 +209,11 @@ def tightened(problem: DockingProblem, bounds: ErrorBounds) -> DockingProblem:
     """The problem the robust MPC plans (module docstring): a wider keep-out standoff, a lower v0."""
     a, b = problem.matrices()
     lever = np.linalg.norm((a @ b + b)[:3], 2)
-    standoff = bounds.navigation(a @ a) + bounds.actuation() * lever * problem.u_max * np.sqrt(3.0)
+    standoff = bounds.position_margin(a) + bounds.actuation() * lever * problem.u_max * np.sqrt(3.0)
     out = problem.replace(margin=problem.margin + standoff)
     if problem.speed_limit is not None:
         v0, v1 = problem.speed_limit
-        shrink = bounds.speed(a) + v1 * bounds.navigation(a)
+        shrink = bounds.speed_margin(a, v1)
         if shrink >= v0:
             raise ValueError(
                 f"the speed margin {shrink:.3g} m/s of these bounds leaves no speed at the port (v0 = {v0:g} m/s)"

@@ -56,8 +56,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from cwh_envs.cbf_multi import LINEARISATIONS, barrier_rows, project_polytope_box, safe_actions_multi
-from cwh_envs.constraints import cone_axis, cone_terms, speed_margin
+from cwh_envs.cbf_multi import (
+    CONE_SLACK,
+    LINEARISATIONS,
+    barrier_rows,
+    broken_when_held,
+    check_filter_inputs,
+    project_polytope_box,
+    safe_actions_multi,
+)
+from cwh_envs.constraints import cone_axis, cone_terms
 from cwh_envs.dynamics import apply
 
 MARGIN_SCALES = (1.0, 0.5, 0.25, 0.0)  # fractions of the margins tried in turn (module docstring)
@@ -123,6 +131,15 @@ class ErrorBounds:
             self.nav_position * np.linalg.norm(vr, 2) + self.nav_velocity * np.linalg.norm(vv, 2)
         )
 
+    def position_margin(self, a: np.ndarray) -> float:
+        """The k-sigma navigation error of a two-step position prediction (keep-out, cone), m."""
+        return self.navigation(a @ a)
+
+    def speed_margin(self, a: np.ndarray, v1: float) -> float:
+        """The k-sigma navigation error of the speed limit ``||v|| <= v0 + v1 ||r - g||`` one step
+        ahead: the speed's and ``v1`` times the position's, m/s."""
+        return self.speed(a) + v1 * self.navigation(a)
+
 
 class RobustCBFResult(NamedTuple):
     """As :class:`cwh_envs.cbf_multi.MultiCBFResult`, plus ``margin_scale`` (N,): the fraction of
@@ -150,17 +167,7 @@ def robust_safe_actions(
     the keep-out standoff (``problem.margin`` by default). 1-D in, 1-D out."""
     if not isinstance(bounds, ErrorBounds):
         raise ValueError(f"bounds must be an ErrorBounds, got {type(bounds).__name__}")
-    u0 = np.atleast_2d(np.asarray(u_nominal, dtype=np.float64))
-    states = np.atleast_2d(np.asarray(estimates, dtype=np.float64))
-    goals2 = np.atleast_2d(np.asarray(goals, dtype=np.float64))
-    single = np.asarray(estimates).ndim == 1
-    if not (states.shape[-1] == 6 and u0.shape == goals2.shape == (len(states), 3)):
-        raise ValueError(
-            f"estimates must be (6,) or (N, 6), u_nominal and goals (3,) or (N, 3) alike, got "
-            f"{states.shape}, {u0.shape} and {goals2.shape}"
-        )
-    if not all(np.all(np.isfinite(x)) for x in (states, u0, goals2)):
-        raise ValueError("estimates, u_nominal and goals must be finite, got NaN/inf entries")
+    u0, states, goals2, single = check_filter_inputs(u_nominal, estimates, goals, state_name="estimates")
     standoff = problem.margin if margin is None else float(margin)
     a, b = problem.matrices()
     u_max = problem.u_max
@@ -190,7 +197,7 @@ class _Tightened:
     """The tightened constraints of one margin fraction, for a batch of goals (module docstring)."""
 
     def __init__(self, problem, bounds: ErrorBounds, a, b, fraction: float, goals, standoff: float) -> None:
-        self.eps = fraction * bounds.navigation(a @ a)  # position margin of x_{t+2}, m
+        self.eps = fraction * bounds.position_margin(a)  # m
         self.actuation = fraction * bounds.actuation()
         self.apex = goals
         speed_limit, cone = problem.speed_limit, problem.approach_cone
@@ -202,8 +209,7 @@ class _Tightened:
         if speed_limit is not None:
             v0, v1 = speed_limit
             # The speed row measures distance from the apex: |d(apex) - d(g)| <= |setback|.
-            position = fraction * bounds.navigation(a)
-            shrink = fraction * bounds.speed(a) + v1 * (position + abs(setback))
+            shrink = fraction * bounds.speed_margin(a, v1) + v1 * abs(setback)
             speed_limit = (max(v0 - shrink, 1e-9), v1)
         self.terms = dict(
             koz_radius=problem.koz_radius,
@@ -219,20 +225,24 @@ def _solve(u0, states, tight: _Tightened, a, b, u_max):
     prediction. Returns (u, met)."""
     point = np.clip(u0, -u_max, u_max)
     u, feasible = point.copy(), np.ones(len(u0), dtype=bool)
+    cone = tight.terms["approach_cone"] is not None
+    outside = _outside_cone_and_zone(states, tight, a) if cone else None
     for _ in range(LINEARISATIONS):
         # The keep-out's eps is in its radius and the cone's in its apex (terms); the thrust error here.
         rows, h, applies = barrier_rows(states, tight.apex, point, a, b, **tight.terms)
-        if tight.terms["approach_cone"] is not None:
-            rows[:, 2], h[:, 2], applies[:, 2] = _zone_rows(states, tight, a, b, point, rows[:, 2], h[:, 2])
+        if cone:
+            rows[:, 2], h[:, 2], applies[:, 2] = _zone_rows(
+                states, tight, a, b, point, outside, rows[:, 2], h[:, 2]
+            )
         h += tight.actuation * np.linalg.norm(rows, axis=2) * np.linalg.norm(point, axis=1)[:, None]
         u, feasible = project_polytope_box(u0, rows, h, applies, u_max)
         if np.array_equal(u[feasible], point[feasible]):
             break
         point = np.where(feasible[:, None], u, point)
-    return u, feasible & _met(states, tight, u, a, b)
+    return u, feasible & _met(states, tight, u, a, b, outside)
 
 
-def _branch(states, tight: _Tightened, a) -> np.ndarray:
+def _outside_cone_and_zone(states, tight: _Tightened, a) -> np.ndarray:
     """True where the chaser, at ``x_{t+1}``, is outside the cone and outside the zone: the zone's
     ball is then its barrier (:func:`_zone_rows`)."""
     radius = tight.terms["approach_cone"][1]
@@ -243,7 +253,7 @@ def _branch(states, tight: _Tightened, a) -> np.ndarray:
     return (slack < 0.0) & (np.linalg.norm(r_next - tight.apex, axis=1) > radius)
 
 
-def _zone_rows(states, tight: _Tightened, a, b, point, cone_row, cone_h):
+def _zone_rows(states, tight: _Tightened, a, b, point, outside, cone_row, cone_h):
     """The third barrier row per instance: the tightened cone where the chaser is inside it, or
     headed into the zone while inside it (anticipated ZONE_LOOKAHEAD beyond the zone); outside the
     cone and outside the zone, the zone's ball as a keep-out, ``||r_{t+2} - p|| >= radius + eps``
@@ -256,25 +266,22 @@ def _zone_rows(states, tight: _Tightened, a, b, point, cone_row, cone_h):
     normal = r_next / np.where(norm > 0.0, norm, 1.0)
     ball_row = apply((a @ b + b)[:3].T, normal)
     ball_h = radius + tight.eps - np.einsum("ni,ni->n", normal, two_step)
-    outside = _branch(states, tight, a)
     predicted = two_step + apply((a @ b + b)[:3], point)
     near = np.linalg.norm(predicted, axis=1) <= radius + ZONE_LOOKAHEAD
     row = np.where(outside[:, None], ball_row, cone_row)
     return row, np.where(outside, ball_h, cone_h), outside | near
 
 
-def _met(states, tight: _Tightened, u, a, b) -> np.ndarray:
+def _met(states, tight: _Tightened, u, a, b, outside) -> np.ndarray:
     """Whether the held action meets the tightened speed limit and cone on the exact prediction
-    from the estimate (the keep-out row is exact). The thrust-error term is first-order: not checked."""
-    after = apply(a, states) + apply(b, u)
-    ok = np.ones(len(u), dtype=bool)
-    if tight.terms["speed_limit"] is not None:
-        ok &= speed_margin(after, tight.apex, tight.terms["speed_limit"]) >= -1e-7
-    if tight.terms["approach_cone"] is not None:
-        two_step = apply(a, after) + apply(b, u)
-        region, slack, _ = cone_terms(two_step, tight.apex, tight.terms["approach_cone"])
-        outside = _branch(states, tight, a)
+    from the estimate, as the nominal filter checks its own (:func:`cwh_envs.cbf_multi.broken_when_held`),
+    or, for a chaser outside the cone and the zone, the zone's ball (the keep-out row is exact). The
+    thrust-error term is first-order: not checked."""
+    broken = broken_when_held(states, tight.apex, u, a, b, tight.terms)[1]
+    ok = ~broken[:, 1]
+    if outside is not None:
+        two_step = apply(a, apply(a, states) + apply(b, u)) + apply(b, u)
         distance = np.linalg.norm(two_step[:, :3] - tight.apex, axis=1)
         radius = tight.terms["approach_cone"][1]
-        ok &= np.where(outside, distance >= radius + tight.eps - 1e-3, ~region | (slack >= -1e-3))
+        ok &= np.where(outside, distance >= radius + tight.eps - CONE_SLACK, ~broken[:, 2])
     return ok
