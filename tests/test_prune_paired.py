@@ -166,13 +166,18 @@ def test_prune_and_audit_take_the_rule_flags(p1, capsys):
     assert len(read_jsonl(log)) == lines  # every pruning run was reused
 
 
-def test_report_of_a_stopped_rule_says_how_to_resume(p1):
+def test_report_of_a_stopped_rule_says_how_to_resume(p1, tmp_path):
+    # On a copy, with the paired rule at the candidate's noise pruned here: the test needs no other
+    # test to have run first (under xdist it may land on a worker where none did).
     _, root, _, _ = p1
-    audit = read_audit(root)
+    copy = tmp_path / root.name
+    shutil.copytree(root, copy)
+    assert main(["prune", "--campaign", str(copy), "--paired", "--noise-at", "candidate"]) == 0
+    audit = read_audit(copy)
     write_step(
-        root, "prune_candidate", {**audit["prune_paired_candidate"], "paired": False, "status": "running"}
+        copy, "prune_candidate", {**audit["prune_paired_candidate"], "paired": False, "status": "running"}
     )
-    text = write_report(root).read_text()
+    text = write_report(copy).read_text()
     assert (
         "Not finished: run `autoresearch prune --campaign DIR --noise-at candidate` again to resume." in text
     )
