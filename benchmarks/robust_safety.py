@@ -28,19 +28,12 @@ from cwh_envs import splits
 from cwh_envs.constraints import violation_depths
 from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback
 from cwh_envs.mpc import RecedingHorizon
-from cwh_envs.problems import DockingProblem
+from cwh_envs.prepare import load_train
 from cwh_envs.robust_cbf import ErrorBounds
 from cwh_envs.rollout import control_effort, fly
 
 ROOT = Path(__file__).resolve().parents[1]
-# The docking families' DISPERSIONS (families/docking*/train.py), 1 sigma.
-ONE_SIGMA = dict(thrust_scale=0.02, misalignment_deg=1.0, mass=0.02, nav_position=0.05, nav_velocity=5e-4)
-PROBLEMS = {
-    "docking-constrained": DockingProblem(
-        speed_limit=(0.01, 2 * DockingProblem().n), approach_cone=(30.0, 15.0)
-    ),
-    "docking": DockingProblem(),
-}
+TASKS = ("docking-constrained", "docking")  # families whose PROBLEM and DISPERSIONS (1 sigma) are flown
 DISPERSION_SEED = 0
 TIMED_STARTS = 8
 CONSTRAINTS = ("keep_out", "speed", "cone")
@@ -48,7 +41,7 @@ CONSTRAINTS = ("keep_out", "speed", "cone")
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--task", choices=sorted(PROBLEMS), default="docking-constrained")
+    parser.add_argument("--task", choices=TASKS, default="docking-constrained")
     parser.add_argument("--starts", type=int, default=None, help="the first N sealed starts (default: all)")
     parser.add_argument("--mpc-starts", type=int, default=0, help="MPC rows on the first N starts (slow)")
     parser.add_argument("--k-sigma", type=float, default=3.0)
@@ -56,7 +49,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def rows(problem: DockingProblem, bounds: ErrorBounds, mpc_starts: int) -> list[dict]:
+def rows(problem, bounds: ErrorBounds, mpc_starts: int) -> list[dict]:
     """(name, policy factory, fly keywords, starts) of every row."""
     law = WaypointFeedback if problem.approach_cone is not None else MinEnergyFeedback
     label = "routed law" if problem.approach_cone is not None else "min-energy law"
@@ -86,7 +79,7 @@ def rows(problem: DockingProblem, bounds: ErrorBounds, mpc_starts: int) -> list[
     return out
 
 
-def measure(problem, row: dict, starts, goals, energy) -> dict:
+def measure(problem, one_sigma: dict, row: dict, starts, goals, energy) -> dict:
     n = row.get("starts", len(starts))
     starts, goals, energy = starts[:n], goals[:n], energy[:n]
     out: dict = {"controller": row["name"], "starts": n}
@@ -103,7 +96,7 @@ def measure(problem, row: dict, starts, goals, energy) -> dict:
         **counters(policy),
     }
     for level, scale in (("1σ", 1.0), ("3σ", 3.0)):
-        spreads = {k: v * scale for k, v in ONE_SIGMA.items()}
+        spreads = {k: v * scale for k, v in one_sigma.items()}
         policy = row["make"]()
         flight = fly(
             problem, policy, starts, goals, dispersions=spreads, dispersion_seed=DISPERSION_SEED, **row["fly"]
@@ -204,15 +197,16 @@ def markdown(task: str, results: list[dict], command: str) -> str:
 
 def main(argv=None) -> None:
     args = parse_args(argv)
-    problem = PROBLEMS[args.task]
+    train = load_train(ROOT / "families" / args.task)  # the family's own constants
+    problem, one_sigma = train.PROBLEM, train.DISPERSIONS
     split = splits.shipped_split("docking", problem, "test")
     n = len(split) if args.starts is None else args.starts
     starts, goals = split.first(n)
-    bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=args.k_sigma)
+    bounds = ErrorBounds.from_dispersions(one_sigma, k_sigma=args.k_sigma)
     results = []
     for row in rows(problem, bounds, args.mpc_starts):
         began = time.perf_counter()
-        results.append(measure(problem, row, starts, goals, split.energy[:n]))
+        results.append(measure(problem, one_sigma, row, starts, goals, split.energy[:n]))
         print(f"{row['name']}: {time.perf_counter() - began:.0f} s", flush=True)
     command = "python benchmarks/robust_safety.py " + " ".join(argv or [])
     args.out.mkdir(parents=True, exist_ok=True)

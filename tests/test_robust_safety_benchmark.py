@@ -1,0 +1,35 @@
+"""benchmarks/robust_safety.py on the first starts of the sealed split: the family's own constants,
+every row at every dispersion level, and a table that says what it measured."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import robust_safety
+
+
+@pytest.mark.needs("families")  # the task loads its family's train.py, which imports torch
+def test_a_short_run_writes_every_row_at_every_level(tmp_path):
+    robust_safety.main(["--starts", "3", "--out", str(tmp_path)])
+    payload = json.loads((tmp_path / "docking-constrained.json").read_text())
+    assert payload["split"].startswith("docking-constrained/test")
+    names = [row["controller"] for row in payload["rows"]]
+    assert names == [
+        "routed law + CBF",
+        "routed law + CBF fed the truth (comparison)",
+        "routed law + robust CBF (1σ bounds, k=3)",
+    ]
+    for row in payload["rows"]:
+        assert row["starts"] == 3 and row["us_per_step"] > 0
+        for level in ("1σ", "3σ"):
+            assert set(row[level]["breaking"]) == {"keep_out", "speed", "cone"}
+            assert all(0 <= count <= 3 for count in row[level]["breaking"].values())
+    # Without dispersions, the nominal and the truth-fed filter are one flight.
+    assert payload["rows"][0]["nominal"] == payload["rows"][1]["nominal"]
+    table = (tmp_path / "docking-constrained.md").read_text()
+    assert "--starts 3" in table and table.count("| routed law") == 3
