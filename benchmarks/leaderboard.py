@@ -554,6 +554,18 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
     for counts in ("mpc", "mpc_dispersed"):
         if counts in per_seed[0]:
             out[counts] = per_seed[0][counts]
+    if task.docking:
+        out |= flight(task)
+    return out
+
+
+def flight(task: Task) -> dict:
+    """What a docking row's numbers depend on beyond its policy (issue 58): the filter of a dispersed
+    flight acts on the navigation estimate (``fly``'s default), and the cone is scored with the
+    problem's capture envelope."""
+    out = {"dispersed_filter_sees": "estimate"}
+    if task.problem.approach_cone is not None:
+        out["capture_radius"] = task.problem.capture_radius
     return out
 
 
@@ -609,6 +621,10 @@ def markdown(rows: list[dict]) -> str:
                 notes.append(f"strict-feasible {sum(r['strict_feasible'])}/{len(r['strict_feasible'])}")
             if "split_id" not in r:  # flown before rows recorded it (issue 57): results/splits/README.md
                 notes.append("split not recorded (flown before issue 57)")
+            if r["cbf"] and "dispersed_filter_sees" not in r:  # flown before issue 58
+                notes.append("dispersed with the filter fed the true state (flown before issue 58)")
+            if "cone" in (r["violation_rate"] or {}) and "capture_radius" not in r:
+                notes.append("cone scored with its apex on the port (before issue 58's capture envelope)")
             lines.append(
                 f"| {r['controller']} | {metric} | {r['success_rate']:.1%} | {rates} | "
                 f"{fmt(r['p99_terminal_distance'])} / {fmt(r['max_terminal_distance'])} | {fmt(r['delta_v_ratio'])} | "
@@ -676,6 +692,8 @@ def main(argv=None) -> None:
                 "starts": entry.starts,
                 # only where one is granted: the rows measured before budgets stay cached
                 **({"time_budget": entry.time_budget} if entry.time_budget else {}),
+                # how a docking row is scored and flown dispersed (issue 58): a row cached before is stale
+                **({"flight": flight(task)} if task.docking else {}),
             }
             cached = (
                 json.loads(cache.read_text(encoding="utf-8")) if cache.exists() and not args.fresh else {}

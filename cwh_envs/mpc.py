@@ -101,7 +101,7 @@ class RecedingHorizon:
             isinstance(bounds, ErrorBounds) and isinstance(problem, DockingProblem)
         ):
             raise ValueError(f"bounds must be an ErrorBounds, on a DockingProblem; got {bounds!r}")
-        self.problem, self.on_failure, self.bounds = problem, on_failure, bounds
+        self.problem, self.on_failure = problem, on_failure
         self.planned = problem if bounds is None else tightened(problem, bounds)
         if isinstance(problem, DockingProblem) and problem.approach_cone is not None:
             half_angle, radius = self.planned.approach_cone

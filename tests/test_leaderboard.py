@@ -89,3 +89,17 @@ def test_a_family_best_is_trained_under_the_budget_it_was_certified_under(tmp_pa
     trained = (budgeted / "policy.pt").stat().st_mtime_ns
     board.trained_bc(task, tmp_path, "b", config, 0, 30.0)  # kept: the same recipe under the same budget
     assert (budgeted / "policy.pt").stat().st_mtime_ns == trained
+
+
+@pytest.mark.needs("families")  # the leaderboard script runs with the families' extras
+def test_rows_flown_before_issue_58_say_how_their_dispersed_column_and_cone_were_measured():
+    board = leaderboard()
+    (committed,) = [r for r in ROWS if r["task"] == "docking-constrained" and r["controller"] == "PD + CBF"]
+    text = board.markdown([committed])
+    assert "dispersed with the filter fed the true state (flown before issue 58)" in text
+    assert "cone scored with its apex on the port" in text
+    # A row flown now records the flight (leaderboard.flight), and says nothing of the kind.
+    fresh = {**committed, "dispersed_filter_sees": "estimate", "capture_radius": 0.1}
+    assert "issue 58" not in board.markdown([fresh])
+    # The committed table is what the code writes from the committed rows.
+    assert (ROOT / "results" / "leaderboard.md").read_text(encoding="utf-8") == board.markdown(ROWS)
