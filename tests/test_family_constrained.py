@@ -61,7 +61,7 @@ def test_the_score_counts_every_constraint_and_the_gate_covers_them(train):
     pool = start_pool("docking", 6, train.PROBLEM)
     config = {name: getattr(train, name) for name in train.CONFIG_NAMES}
     torch_policy = train.build_policy(config)  # an untrained network: it drifts, and breaks things
-    flight = train.fly(torch_policy, pool.starts, pool.goals, cbf=True)
+    flight = train.fly(torch_policy, pool.starts, pool.goals, train.safety_filter(config))
     metrics = train.docking_metrics(flight, flight.thrust)
     rates = metrics["violation_rates"]
     expected = (
@@ -75,8 +75,34 @@ def test_the_score_counts_every_constraint_and_the_gate_covers_them(train):
     assert metrics["constraints"]["cone_violation_rate"] == rates["cone"]
     assert not metrics["strict_feasible"] and metrics["effort_ratio"] == pytest.approx(1.0)
     dispersed = train.dispersed_metrics(
-        train.fly(torch_policy, pool.starts, pool.goals, True, train.DISPERSIONS)
+        train.fly(torch_policy, pool.starts, pool.goals, train.safety_filter(config), train.DISPERSIONS),
+        train.DISPERSIONS,
     )
     assert dispersed["dispersions"] == train.DISPERSIONS
     assert dispersed["mean_terminal_distance"] != metrics["mean_terminal_distance"]
     assert np.isfinite(dispersed["violation_rate"])
+    # Per constraint: the starts breaking it as the score counts them, and how deep it went.
+    assert set(dispersed["breaking_starts"]) == set(dispersed["deepest"]) == {"keep_out", "speed", "cone"}
+    assert dispersed["violating_starts"] >= max(dispersed["breaking_starts"].values())
+    assert all((dispersed["deepest"][k] > 0) >= (n > 0) for k, n in dispersed["breaking_starts"].items())
+
+
+@pytest.mark.needs("families")
+def test_the_robust_filter_lever_flies_the_robust_filter_and_the_protocol_limits_the_dispersed_share(train):
+    from autoresearch.family import Family
+
+    config = {name: getattr(train, name) for name in train.CONFIG_NAMES}
+    assert train.safety_filter(config) == {"cbf_margin": train.PROBLEM.margin}
+    assert train.safety_filter({**config, "RUNTIME_CBF_FILTER": False}) == {}
+    robust = train.safety_filter({**config, "ROBUST_FILTER_K": 3.0})
+    assert robust["cbf_bounds"].k_sigma == 3.0 and robust["cbf_bounds"].nav_position == 0.05
+    pool = start_pool("docking", 3, train.PROBLEM)
+    policy = train.build_policy({**config, "POLICY_FORM": "route"})  # the routed law: a zero correction
+    flight = train.fly(policy, pool.starts, pool.goals, robust, train.DISPERSIONS)
+    assert flight.cbf_margin_scale is not None  # the robust filter flew
+    with pytest.raises(SystemExit, match="ROBUST_FILTER_K"):
+        train.check_config({**config, "ROBUST_FILTER_K": -1.0})
+    family = Family.load(FAMILY).under_protocol("robust")
+    assert family.limits == {"dispersed_violating_share": 0.001}
+    assert family.is_feasible({"strict_feasible": True, "dispersed_violating_share": 0.0})
+    assert not family.is_feasible({"strict_feasible": True, "dispersed_violating_share": 1 / 128})

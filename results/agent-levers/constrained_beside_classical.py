@@ -73,7 +73,10 @@ def main(argv: list[str]) -> None:
     row("PD + filter", flown(lambda obs: pd_action(obs, plain), n), n)
     for run_dir in run_dirs:
         policy, saved = train.load_policy(Path(run_dir) / "out")
-        flight = train.fly(policy, held_out.starts, held_out.goals, saved["config"]["RUNTIME_CBF_FILTER"])
+        config = {name: getattr(train, name) for name in train.CONFIG_NAMES} | saved[
+            "config"
+        ]  # keys added since at their defaults
+        flight = train.fly(policy, held_out.starts, held_out.goals, train.safety_filter(config))
         row(f"{Path(run_dir).name} ({saved['config']['POLICY_FORM']})", flight, n)
 
 
