@@ -135,6 +135,13 @@ class Family:
         return dict(self.registry["baseline"]["config"])
 
     @property
+    def time_budget(self) -> float | None:
+        """family.json's ``time_budget``: the training seconds a run of this family is granted by
+        default (``loop`` grants it unless told otherwise; karpathy/autoresearch fixes one), so that
+        runs are comparable and a campaign's length is known. None when the family declares none."""
+        return self.registry.get("time_budget")
+
+    @property
     def default_seed(self) -> int:
         return self.registry.get("default_seed", 0)
 
@@ -370,6 +377,12 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
     seed = registry.get("default_seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool):
         bad("default_seed", "must be an integer")
+    budget = registry.get("time_budget")
+    if budget is not None and not (_number(budget) and budget > 0):
+        bad(
+            "time_budget",
+            f"must be a positive number of seconds or null (a run's training budget), got {budget!r}",
+        )
     best = registry.get("best")
     if best is not None and not (isinstance(best, dict) and isinstance(best.get("config"), dict)):
         bad("best", "must be null or an object with a 'config'")

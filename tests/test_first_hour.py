@@ -122,7 +122,9 @@ def test_the_stop_line_is_not_numbered_as_an_experiment(tmp_path):
     lines = _random_loop(copy_toy(tmp_path), tmp_path / "c", 4).stdout.splitlines()
     events = [line.split("]")[0] + "]" for line in lines if line.startswith("[")]
     assert events == ["[it 1]", "[it 2]", "[it 3]", "[it 4]", "[stop]"]
-    assert lines[4].startswith("[stop] random: stopped: max_iters 4 iterations reached the cap of 4")
+    (stop,) = [line for line in lines if line.startswith("[stop]")]
+    assert stop.startswith("[stop] random: stopped: max_iters 4 iterations reached the cap of 4")
+    assert lines[0].startswith("loop: family toy, proposer random")  # the banner comes first
 
 
 def test_the_search_figure_spans_the_experiments_and_keeps_its_legend_off_the_data(tmp_path):

@@ -12,7 +12,7 @@ from autoresearch.audit.noise import measure_noise
 from autoresearch.campaign import Campaign, CampaignMeta
 from autoresearch.cli import main
 from autoresearch.execution.executors import LocalExecutor
-from autoresearch.family import Family
+from autoresearch.family import Family, family_problems
 from autoresearch.journal import read_json, read_jsonl
 from autoresearch.loop.session import settings_of
 from autoresearch.loop.stopping import stop_gate
@@ -121,8 +121,8 @@ def test_the_cli_keeps_the_budget_and_kills_a_family_that_ignores_it(tmp_path, c
     assert main([*map(str, refused), "--time-budget", "5", "--timeout-per-run", "60"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--timeout-per-run does not apply with --time-budget" in err
-    assert main([*map(str, refused), "--eval-allowance", "5"]) == 2
-    assert "--eval-allowance applies with --time-budget only" in capsys.readouterr().err
+    assert main([*map(str, refused), "--time-budget", "0", "--eval-allowance", "5"]) == 2
+    assert "--eval-allowance applies under a time budget only" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
 
 
@@ -177,3 +177,72 @@ def test_a_non_positive_allowance_is_refused(tmp_path, allowance, capsys):
     with pytest.raises(SystemExit) as exit_:
         main([*map(str, args), "--campaign", str(tmp_path / "c")])
     assert exit_.value.code == 2 and "expected a positive float" in capsys.readouterr().err
+
+
+def _with_budget(toy, budget):
+    registry = json.loads((toy / "family.json").read_text())
+    (toy / "family.json").write_text(json.dumps({**registry, "time_budget": budget}))
+
+
+def test_a_plain_loop_grants_the_familys_budget_and_says_how_long_it_may_take(tmp_path, capsys):
+    """family.json's time_budget is every run's unless the flags decide (issue 59): the banner says the
+    budget, the caps, the workers and a bound on the campaign; --time-budget 0 means none."""
+    toy = budgeted_family(tmp_path)
+    _with_budget(toy, 0.5)
+    args = ["loop", "--family", toy, "--proposer", "random", "--max-iters", "2", "--plain", "--seed", "3"]
+    assert main([*map(str, [*args, "--campaign", tmp_path / "a"])]) == 0
+    out = capsys.readouterr().out
+    assert CampaignMeta.read(tmp_path / "a").time_budget == 0.5
+    banner = out.split("\n[it 1]")[0]
+    assert "loop: family toy, proposer random, 1 worker" in banner
+    assert "each run: 0.5 s of training (the family's default)" in banner
+    assert "stops at the first of: 2 iterations" in banner
+    eval_allowance = CampaignMeta.read(tmp_path / "a").eval_allowance
+    assert f"campaign length: at most {round(2 * (0.5 + eval_allowance) / 60)} min (2 runs" in banner
+    records = read_jsonl(tmp_path / "a" / "proposals.jsonl")
+    assert all(r["final_metric"]["seen_budget"] == "0.5" for r in records if r.get("final_metric"))
+    # --time-budget 0: no budget, each run limited by --timeout-per-run alone.
+    assert main([*map(str, [*args, "--campaign", tmp_path / "b", "--time-budget", "0"])]) == 0
+    assert "each run: no training budget; stopped at 1 h 00 min" in capsys.readouterr().out
+    assert CampaignMeta.read(tmp_path / "b").time_budget is None
+    # --timeout-per-run alone decides the limit too: the family's budget is not granted beside it.
+    assert main([*map(str, [*args, "--campaign", tmp_path / "c", "--timeout-per-run", "30"])]) == 0
+    assert CampaignMeta.read(tmp_path / "c").time_budget is None
+    # --max-iters 1 runs the baseline only, and says so.
+    one = [*map(str, args[:5]), "--max-iters", "1", "--plain", "--campaign", str(tmp_path / "d")]
+    assert main(one) == 0
+    assert "1 iteration (the baseline only" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("given", ["-1", "nan", "inf", "ten"])
+def test_a_bad_time_budget_is_refused_by_name(tmp_path, capsys, given):
+    toy = copy_toy(tmp_path)
+    with pytest.raises(SystemExit):
+        main(["loop", "--family", str(toy), "--proposer", "random", "--time-budget", given])
+    err = capsys.readouterr().err
+    assert "--time-budget" in err and "seconds >= 0" in err and repr(given) in err
+    assert not (tmp_path / "runs").exists()
+
+
+@pytest.mark.parametrize("declared", [-5, 0, "300", True, float("inf")])
+def test_a_familys_bad_time_budget_is_named_by_its_check(tmp_path, declared):
+    toy = copy_toy(tmp_path)
+    registry = json.loads((toy / "family.json").read_text())
+    registry["time_budget"] = declared
+    (toy / "family.json").write_text(json.dumps(registry).replace("Infinity", "1e999"))
+    problems = family_problems(toy)
+    assert any("'time_budget' must be a positive number of seconds or null" in p for p in problems)
+
+
+def test_a_campaign_with_no_feasible_run_says_which_came_closest_and_by_how_much(tmp_path, capsys):
+    """"best: none" names the run nearest the gate and what it missed (issue 59), from its record."""
+    toy = copy_toy(tmp_path)
+    registry = json.loads((toy / "family.json").read_text())
+    registry["baseline"]["config"]["MOMENTUM"] = 0.99  # lr / (1 - momentum) = 1.0: over the toy's 0.5
+    (toy / "family.json").write_text(json.dumps(registry))
+    train = toy / "train.py"
+    train.write_text(train.read_text().replace("MOMENTUM = 0.5  #", "MOMENTUM = 0.99  #", 1))
+    args = ["loop", "--family", toy, "--proposer", "random", "--max-iters", "1", "--plain"]
+    assert main([*map(str, [*args, "--campaign", tmp_path / "c"])]) == 0
+    out = capsys.readouterr().out
+    assert "best loss: none: no feasible run; the closest, it0001, missed step_excess by 0.5" in out

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from collections.abc import Iterator
@@ -54,6 +55,17 @@ def _positive(kind):
     return parse
 
 
+def _budget(text: str) -> float:
+    """--time-budget: seconds of training, 0 for none (a negative or non-finite budget is refused)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds >= 0 (0: no budget), got {text!r}")
+    return value
+
+
 def _queue_file(path: str) -> list[dict[str, Any]]:
     try:
         return read_queue(path)
@@ -96,11 +108,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--time-budget",
-        type=_positive(float),
+        type=_budget,
         metavar="SECONDS",
         help="training seconds each run is granted (AUTORESEARCH_TIME_BUDGET): a family that honours it "
         "stops training there and is scored as it stands; a run's hard limit is then the budget plus "
-        "--eval-allowance; kept in campaign.json",
+        "--eval-allowance. Default: the family's own (family.json 'time_budget'); 0: no budget, each run "
+        "limited by --timeout-per-run alone; kept in campaign.json",
     )
     p.add_argument(
         "--eval-allowance",
@@ -192,16 +205,22 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def _given(args: argparse.Namespace) -> dict[str, Any]:
-    """The settings the flags give (None: not given, as saved)."""
+def _given(args: argparse.Namespace, family: Family | None = None) -> dict[str, Any]:
+    """The settings the flags give (None: not given, as saved), and for a new campaign of ``family``
+    its default training budget unless the flags decide the run's limit (--time-budget, 0 for none,
+    or --timeout-per-run)."""
     given = {k: getattr(args, k) for k in DEFAULTS if getattr(args, k) is not None}
-    if "time_budget" in given and "timeout_per_run" in given:
+    if given.get("time_budget") == 0:
+        given["time_budget"] = None  # explicitly none: it overrides a saved budget on --resume too
+    if given.get("time_budget") is not None and "timeout_per_run" in given:
         raise UsageError(
             "--timeout-per-run does not apply with --time-budget: a budgeted run's limit is its budget "
             "plus --eval-allowance"
         )
+    if family is not None and family.time_budget and not {"time_budget", "timeout_per_run"} & set(given):
+        given["time_budget"] = float(family.time_budget)
     if "eval_allowance" in given and not (given.get("time_budget") or args.resume):
-        raise UsageError("--eval-allowance applies with --time-budget only")
+        raise UsageError("--eval-allowance applies under a time budget only (--time-budget, or the family's)")
     return given
 
 
@@ -233,7 +252,7 @@ def _plan(args: argparse.Namespace) -> tuple[Path, CampaignMeta]:
     root = _campaign_dir(args, family, proposer)
     if root.exists() and (not root.is_dir() or not _never_started(root)):
         raise UsageError(f"{root} already exists; continue it with --resume --campaign {root}")
-    return root, CampaignMeta.new(family, proposer, settings_of(_given(args), {}))
+    return root, CampaignMeta.new(family, proposer, settings_of(_given(args, family), {}))
 
 
 @contextmanager
@@ -279,7 +298,8 @@ def _run_repeats(args: argparse.Namespace) -> int:
         root = _campaign_dir(args, family, proposer)
         # The group's --workers run whole campaigns side by side, each loop on this machine running one
         # run at a time: here, or with --executor ray as a task on the cluster the group connects to.
-        settings = {**settings_of(_given(args), saved.settings if saved else {}), "workers": 1}
+        given = _given(args, None if saved else family)  # a new group gets the family's budget
+        settings = {**settings_of(given, saved.settings if saved else {}), "workers": 1}
         args.workers, args.executor = args.workers or 1, settings["executor"]
         group = plan_group(
             root,

@@ -31,6 +31,7 @@ from autoresearch.exits import error_exit
 from autoresearch.extras import require
 from autoresearch.family import Family, FamilyError, resolve_family
 from autoresearch.journal import JournalError
+from autoresearch.loop.banner import closest_miss, start_banner
 from autoresearch.loop.context import shown_registry
 from autoresearch.loop.live import make_view
 from autoresearch.loop.orchestrator import LoopSettings, Orchestrator
@@ -241,6 +242,7 @@ def run(
         return error_exit("loop", err)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     resume_hint = f"autoresearch loop --resume --campaign {root}"
+    print("\n".join(start_banner(meta, family, loop)), flush=True)
     try:
         view = make_view(family.metric, plain)
         outcome = Orchestrator(
@@ -256,7 +258,10 @@ def run(
         executor.close()
         lock.release()
     best = outcome.best
-    best_text = f"{best.metric:.6g} ({best.run_id})" if best else "none (no feasible run)"
+    state = Campaign(root).state(family)
+    best_text = (
+        f"{best.metric:.6g} ({best.run_id})" if best else f"none: no feasible run; {closest_miss(state)}"
+    )
     print(f"campaign: {root}")
     print(
         f"  ended: {outcome.status}"
@@ -267,7 +272,7 @@ def run(
         f"  iterations: {outcome.iterations}, successful runs: {outcome.n_runs_ok}, best {family.metric}: {best_text}"
     )
     if family.target is not None:
-        print(f"  target {family.target:g}: {_target_report(Campaign(root).state(family))}")
+        print(f"  target {family.target:g}: {_target_report(state)}")
     if outcome.status == "prepare_failed":
         print(f"  fix the family, then: {resume_hint}")
         return 1
