@@ -217,3 +217,47 @@ def test_views_render_every_kind_of_record():
     assert (
         "baseline config" in text and "closest stop: iterations 3/3" in text and "stopped: max_iters" in text
     )
+
+
+def test_at_120_columns_a_key_free_table_keeps_its_headers_and_shows_no_spend():
+    """Issue 59: at 120 columns the table cut 'verdict' to 'verdi…' and showed $0.0000 for a key-free
+    proposer, which spends nothing; the plain line said spend=$0.0000 too."""
+    import io
+
+    from rich.console import Console
+
+    record = Record(
+        1,
+        Status.RAN,
+        proposer="gp",
+        run_id="it0001",
+        wall_seconds=3.0,
+        metric=0.5,
+        verdict="baseline",
+        best_so_far=0.5,
+        cumulative_cost_usd=0.0,
+    )
+    console = Console(file=io.StringIO(), force_terminal=True, width=120)
+    view = RichView("mean_terminal_distance", console=console, spend=False, run_limit=300)
+    view.iteration_started(1)
+    view.proposal(1, "gp", Proposal(kind="propose", overrides={"LEARNING_RATE": 0.0019101141930370157}))
+    view.run_started("it0001")
+    view.run_progress(41.0)
+    table_text = _render(view._table(), 120)
+    assert "verdict" in table_text and "spend" not in table_text and "it0001 41/300 s" in table_text
+    assert "LEARNING_RATE=0.00191" in table_text  # rounded, not 0.0019101141930370157
+    view.record(record, "iterations 1/4")
+    view.close()
+    out = io.StringIO()
+    PlainView("loss", out, spend=False).record(record, "iterations 1/4")
+    assert "spend" not in out.getvalue() and "best=0.5 |" in out.getvalue()
+
+
+def _render(table, width: int) -> str:
+    import io
+
+    from rich.console import Console
+
+    console = Console(file=io.StringIO(), width=width, force_terminal=False)
+    console.print(table)
+    return console.file.getvalue()

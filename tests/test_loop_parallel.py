@@ -107,7 +107,7 @@ def test_the_views_show_every_run_in_flight(toy, tmp_path):
     from autoresearch.proposers.base import Proposal
 
     console = Console(file=io.StringIO(), force_terminal=True, width=200)
-    rich, plain = RichView("loss", console=console), PlainView("loss", stream=io.StringIO())
+    rich, plain = RichView("loss", console=console, run_limit=300), PlainView("loss", stream=io.StringIO())
     for view in (rich, plain):
         for iteration in (1, 2):
             view.iteration_started(iteration)
@@ -122,7 +122,7 @@ def test_the_views_show_every_run_in_flight(toy, tmp_path):
     assert table.row_count == 2
     rich.close()
     text = console.file.getvalue()
-    assert "it0001 running 3s" in text and "it0002 running 1s" in text
+    assert "it0001 3/300 s" in text and "it0002 1/300 s" in text  # elapsed of its limit
     assert "[it 2] started it0002 (also running: it0001)" in plain.stream.getvalue()
 
 

@@ -235,7 +235,7 @@ def test_a_familys_bad_time_budget_is_named_by_its_check(tmp_path, declared):
 
 
 def test_a_campaign_with_no_feasible_run_says_which_came_closest_and_by_how_much(tmp_path, capsys):
-    """"best: none" names the run nearest the gate and what it missed (issue 59), from its record."""
+    """ "best: none" names the run nearest the gate and what it missed (issue 59), from its record."""
     toy = copy_toy(tmp_path)
     registry = json.loads((toy / "family.json").read_text())
     registry["baseline"]["config"]["MOMENTUM"] = 0.99  # lr / (1 - momentum) = 1.0: over the toy's 0.5
@@ -246,3 +246,12 @@ def test_a_campaign_with_no_feasible_run_says_which_came_closest_and_by_how_much
     assert main([*map(str, [*args, "--campaign", tmp_path / "c"])]) == 0
     out = capsys.readouterr().out
     assert "best loss: none: no feasible run; the closest, it0001, missed step_excess by 0.5" in out
+
+
+def test_loop_help_says_what_a_run_and_a_campaign_cost(capsys):
+    with pytest.raises(SystemExit):
+        main(["loop", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "Each run trains for the family's time budget (family.json 'time_budget'" in text
+    assert "1 runs the baseline only" in text and "0: no budget" in text
+    assert "autoresearch loop --family rendezvous --proposer gp" in text  # an example that runs key-free

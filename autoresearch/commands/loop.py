@@ -77,8 +77,19 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "loop",
         help=SUMMARIES["loop"],
-        description="Run the agent loop on a family: propose, patch, run, record, until a stopping trigger fires.",
-        epilog="Example: autoresearch loop --family docking --proposer tpe --max-iters 30",
+        description="Run the agent loop on a family: propose a configuration, patch it into the editable\n"
+        "block of the family's train.py, run it, record the result, until a stopping trigger fires.\n\n"
+        "Each run trains for the family's time budget (family.json 'time_budget': 240-600 s for the\n"
+        "shipped families) unless --time-budget says otherwise; before the first run the loop prints\n"
+        "the budget, the caps and how long the campaign can last. The first iteration runs the\n"
+        "family's baseline. Then `autoresearch audit --campaign DIR` reseeds the best runs on the\n"
+        "sealed split, prunes their edits and runs a matched random arm.",
+        epilog="Examples:\n"
+        "  autoresearch loop --family rendezvous --proposer gp --max-runs 12 --workers 2\n"
+        "  autoresearch loop --family docking --proposer tpe --max-seconds 3600\n"
+        "  autoresearch loop --family docking --proposer anthropic        # ANTHROPIC_API_KEY set\n"
+        "  autoresearch loop --resume --campaign runs/docking-gp-20261206-101500",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--family", help="family name (families/<name>) or family directory")
     p.add_argument("--proposer", choices=PROPOSERS, help="default: anthropic when ANTHROPIC_API_KEY is set")
@@ -88,7 +99,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--blind", action="store_true", default=None, help="blind mode: no target, baseline or best shown"
     )
     p.add_argument(
-        "--max-iters", type=_positive(int), help=f"iteration cap (default {DEFAULTS['max_iters']})"
+        "--max-iters",
+        type=_positive(int),
+        help=f"iteration cap, the baseline's included: 1 runs the baseline only (default {DEFAULTS['max_iters']})",
     )
     p.add_argument("--max-runs", type=_positive(int), help="cap on successful runs")
     p.add_argument("--max-seconds", type=_positive(float), help="wall-clock budget of the loop")

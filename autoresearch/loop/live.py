@@ -82,10 +82,12 @@ class View:
 
 
 class PlainView(View):
-    """One line per event, for logs and pipes: a run started (with several in flight), a record."""
+    """One line per event, for logs and pipes: a run started (with several in flight), a record.
+    ``spend``: an LLM proposer's cumulative spend goes on each line (a key-free one spends nothing)."""
 
-    def __init__(self, metric: str, stream: TextIO | None = None):
+    def __init__(self, metric: str, stream: TextIO | None = None, spend: bool = True):
         self.metric = metric
+        self.spend = spend
         self.stream = stream or sys.stdout
         self.iteration: int | None = None
         self.in_flight: set[str] = set()
@@ -111,31 +113,36 @@ class PlainView(View):
             body = f"{self.metric}={_number(record.metric)} ({_verdict(record)})"
         else:
             body = record.reason or ""
-        tail = f"best={_number(record.best_so_far)} spend=${record.cumulative_cost_usd:.4f} | {closest}"
+        spent = f" spend=${record.cumulative_cost_usd:.4f}" if self.spend else ""
+        tail = f"best={_number(record.best_so_far)}{spent} | {closest}"
         self.in_flight.discard(record.run_id)
         print(f"{head} {body} | {tail}".translate(_CONTROL), file=self.stream, flush=True)
 
 
 class RichView(View):
-    """A live table: iteration, hypothesis, overrides, run progress, metric, verdict, best, spend."""
+    """A live table: iteration, hypothesis, overrides, run progress (seconds of its limit), metric,
+    verdict, best, and an LLM proposer's spend. The columns the eye reads first (run, metric,
+    verdict, best) keep their width at 120 columns; the free text shares what is left."""
 
     # column -> width settings: fixed widths for short fields, shares of the rest for free text
     COLUMNS: ClassVar[dict[str, dict[str, int]]] = {
-        "it": {"max_width": 3},
+        "it": {"min_width": 3},
         "proposer": {"max_width": 8},
         "hypothesis": {"ratio": 2, "min_width": 8},
-        "overrides": {"ratio": 3, "min_width": 8},
-        "run": {"max_width": 18},
-        "metric": {"max_width": 8},
-        "verdict": {"ratio": 1, "min_width": 12},
-        "best": {"max_width": 8},
-        "spend": {"max_width": 7},
+        "overrides": {"ratio": 3, "min_width": 10},
+        "run": {"min_width": 19},
+        "metric": {"min_width": 8},
+        "verdict": {"min_width": 12, "ratio": 1},
+        "best": {"min_width": 8},
+        "spend": {"min_width": 7},
     }
 
-    def __init__(self, metric: str, console: Any = None):
+    def __init__(self, metric: str, console: Any = None, spend: bool = True, run_limit: float | None = None):
         from rich.console import Console
         from rich.live import Live
 
+        self.columns = {k: v for k, v in self.COLUMNS.items() if spend or k != "spend"}
+        self.run_limit = run_limit
         self.metric = metric
         self.rows: list[dict[str, str]] = []
         self.current: dict[str, str] | None = None  # the iteration being proposed
@@ -151,11 +158,11 @@ class RichView(View):
         from rich.table import Table
 
         table = Table(title=f"autoresearch loop ({self.metric})", caption=self.closest or None, expand=True)
-        for column, width in self.COLUMNS.items():
+        for column, width in self.columns.items():
             table.add_column(column, no_wrap=True, overflow="ellipsis", **width)  # one line per iteration
         rows = self.rows[-MAX_ROWS:] + list(self.running.values()) + ([self.current] if self.current else [])
         for row in rows:
-            table.add_row(*(row.get(c, "") for c in self.COLUMNS))
+            table.add_row(*(row.get(c, "") for c in self.columns))
         return table
 
     def _refresh(self) -> None:
@@ -194,7 +201,8 @@ class RichView(View):
             if row is None or int(elapsed) == self.shown_second.get(run_id):
                 return
             self.shown_second[run_id] = int(elapsed)
-            row["run"] = f"{run_id} running {int(elapsed)}s"
+            limit = f"/{self.run_limit:.0f}" if self.run_limit else ""  # how far it may still go
+            row["run"] = f"{run_id} {int(elapsed)}{limit} s"
         self._refresh()
 
     def record(self, record: Record, closest: str) -> None:
@@ -218,8 +226,9 @@ class RichView(View):
         self.live.stop()
 
 
-def make_view(metric: str, plain: bool = False) -> View:
-    """A rich live table on a terminal, else (or with ``plain``) one line per iteration."""
+def make_view(metric: str, plain: bool = False, spend: bool = True, run_limit: float | None = None) -> View:
+    """A rich live table on a terminal, else (or with ``plain``) one line per iteration; ``spend``
+    shows an LLM proposer's spend, ``run_limit`` (s) the limit each run's elapsed time counts to."""
     if plain or not sys.stdout.isatty():
-        return PlainView(metric)
-    return RichView(metric)
+        return PlainView(metric, spend=spend)
+    return RichView(metric, spend=spend, run_limit=run_limit)

@@ -244,7 +244,7 @@ def run(
     resume_hint = f"autoresearch loop --resume --campaign {root}"
     print("\n".join(start_banner(meta, family, loop)), flush=True)
     try:
-        view = make_view(family.metric, plain)
+        view = make_view(family.metric, plain, meta.proposer not in KEY_FREE, meta.run_timeout)
         outcome = Orchestrator(
             family, proposer, root, loop, view=view, executor=executor, on_record=feed
         ).run()
