@@ -9,6 +9,7 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -99,7 +100,44 @@ def test_rows_flown_before_issue_58_say_how_their_dispersed_column_and_cone_were
     assert "dispersed with the filter fed the true state (flown before issue 58)" in text
     assert "cone scored with its apex on the port" in text
     # A row flown now records the flight (leaderboard.flight), and says nothing of the kind.
+    level = {
+        "success_rate": 0.999,
+        "violating_starts": 1.0,
+        "breaking_starts": {"keep_out": 0.0, "speed": 1.0},
+    }
+    level["deepest"] = {"keep_out": 0.0, "speed": 1.7e-4}
+    kept = {
+        **level,
+        "breaking_starts": {"keep_out": 0.0, "speed": 0.0},
+        "deepest": {"keep_out": 0, "speed": 0},
+    }
     fresh = {**committed, "dispersed_filter_sees": "estimate", "capture_radius": 0.1}
-    assert "issue 58" not in board.markdown([fresh])
+    fresh["dispersed"] = {"1sigma": kept, "3sigma": level}
+    text = board.markdown([fresh])
+    assert "issue 58" not in text
+    assert "| 99.9% / 99.9% | 1σ: none<br>3σ: speed 1 (1.70e-04 m/s) |" in text
     # The committed table is what the code writes from the committed rows.
     assert (ROOT / "results" / "leaderboard.md").read_text(encoding="utf-8") == board.markdown(ROWS)
+
+
+@pytest.mark.needs("families")
+def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_level_broke():
+    """The robust filter's row (issue 58) on a few constrained starts: each level's summary counts the
+    starts the flight itself says broke each constraint, with the flight's own deepest violation."""
+    board = leaderboard()
+    task = board.Task.load("docking-constrained", 4)
+    (entry,) = [e for e in board.entries(task, ROOT / "runs" / "leaderboard", [1]) if e.robust]
+    assert entry.name == "routed feedback + robust CBF"
+    measured = board.measure(task, entry, [1])["per_seed"][0]
+    assert set(measured["dispersed"]) == {"1sigma", "3sigma"}
+    stressed = task.fly(entry.make(None), True, None, 3.0, robust=True)
+    summary = measured["dispersed"]["3sigma"]
+    assert summary["breaking_starts"]["speed"] == int((stressed.speed_violation_rate > 0).sum())
+    assert summary["deepest"]["cone"] == float(stressed.cone_depth.max())
+    assert summary["success_rate"] == float(stressed.is_success.mean())
+    # The robust filter is not the nominal one: the same law through the nominal filter flies otherwise.
+    nominal = task.fly(entry.make(None), True, None, 3.0)
+    assert not np.array_equal(nominal.states, stressed.states)
+    row = board.row(task, entry, {"per_seed": [measured]}, None)
+    assert row["robust_bounds"]["k_sigma"] == board.ROBUST_K_SIGMA
+    assert row["dispersed"]["1sigma"]["success_rate"] == row["dispersed_success_rate"]

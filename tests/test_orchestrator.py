@@ -157,11 +157,11 @@ def test_blind_context_hides_answer_bearing_numbers(toy, tmp_path):
     assert all(set(item) == {"config", "loss"} for item in ctx.history) and len(ctx.history) == 2
     assert "0.05" not in json.dumps(ctx.registry) and "0.86" not in json.dumps(ctx.registry)
     assert any("stop request was rejected" in w for w in ctx.warnings)
-    assert not any("0.05" in w or "target gap" in w for w in ctx.warnings)
+    assert not any("0.05" in w or "short of the target" in w or "target reached" in w for w in ctx.warnings)
     full = seeing.contexts[-1]
     assert not full.blind and full.program == (toy / "program.md").read_text()
     assert full.registry["target"] == 0.05 and full.registry["campaign_best"]["run_id"] == "it0001"
-    assert any("target gap" in w for w in full.warnings)
+    assert any("short of the target 0.05" in w for w in full.warnings)
     assert full.history[0]["verdict"] == "baseline" and "auxiliary" in full.history[0]
     assert full.current_values == full.history[0]["config"]
 

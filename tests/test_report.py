@@ -12,6 +12,7 @@ from audit_support import AUDIT_FAMILY, P1, P1W, ScriptedProposer, copy_family, 
 from autoresearch.audit.noise import stale_noise
 from autoresearch.campaign.audit_log import read_audit
 from autoresearch.cli import main
+from autoresearch.commands.random_arm import print_random
 from autoresearch.family import Family
 from autoresearch.proposers.tpe import TPEProposer
 
@@ -49,8 +50,8 @@ def test_report_has_the_audit_table_in_the_papers_shape(audited):
     text = (root / "report.md").read_text()
     for row in (
         "| Seed noise (n=4) | 1.8 ± 0.012 | 0 of 4 | reference |",
-        "| Random search (best of 5) |",
-        "| Matched-range random (best of 5) |",
+        "| Random search (best of 5 draws) |",
+        "| Matched-range random (best of 5 draws) |",
         "| tpe (tpe) (best of ",
         "| Agent, single-seed best | 1.197 | yes | not gated |",
         "| Agent, reseeded (n=4) | **1.297 ± 0.012** | 4 of 4 | **43.6σ, PASS** |",
@@ -58,9 +59,12 @@ def test_report_has_the_audit_table_in_the_papers_shape(audited):
     ):
         assert row in text
     assert "95% Welch CI [" in text and "It is not the single-seed best" in text
-    assert "| DAGGER | optimizer | 0 → 1 | +2.87 | +2.00 | drop† |" in text
+    assert "| DAGGER | optimizer | 0 → 1 | +2.87 | +2.00 | drop, flagged |" in text
     # The full recipe (1.297) missed the toy target (1.1), so the pruned one had none to lose.
-    assert "clears the gate and loses no target (the full recipe did not reach the family's either)" in text
+    assert (
+        "clears the gate and loses no target (the full recipe did not reach the family's target either)"
+        in text
+    )
 
 
 def test_the_report_speaks_in_words(audited):
@@ -93,6 +97,14 @@ def test_the_headline_is_what_the_audit_promoted_and_the_export_its_policy(audit
     assert "| Pruned recipe, reseeded (n=4) |" in text and "σ, published, promoted |" in text
     exported = json.loads((root / "policy.onnx").read_text())["exported"]
     assert exported == pruned["config"]  # the promoted policy's own saved run, not the full recipe's
+    # Issue 59: one promoted recipe, named alike everywhere: verification's winner is "verified", and
+    # the section says pruning promoted its pruned recipe in its place.
+    verified = audit["verify"]["promoted"]
+    assert f"| {verified} (verified) |" in text and f"{verified} (promoted)" not in text
+    assert f"Verified: **{verified}**" in text and "Promoted: **" not in text
+    assert f"Pruning then promoted its pruned recipe **{pruned['config_id']}** in its place" in text
+    # Words, not marks or field names: no dagger, no "0 failed, 0 parity".
+    assert "†" not in text and "parity" not in text and "| none |" in text
 
 
 def test_report_figures_are_non_trivial_pngs(audited):
@@ -176,3 +188,12 @@ def test_an_audit_of_a_changed_family_measures_the_noise_again(audited, tmp_path
     del ledger["seed_noise"]["pinned"]
     (copy.path / "ledger.json").write_text(json.dumps(ledger))
     assert stale_noise(Family.load(copy.path)) == []
+
+
+def test_a_random_arm_counts_the_draws_that_did_not_finish(capsys):
+    """Issue 59: 'best of 4 ... feasible 3 of 3' hid a draw that timed out."""
+    part = {"dir": "arm", "count": 4, "n_ran": 3, "n_feasible": 3, "units": None, "verdict": "tie"}
+    part["best"] = {"metric": 0.59, "run_id": "it0002"}
+    print_random(part)
+    line = capsys.readouterr().out.splitlines()[0]
+    assert "4 draws, 1 did not finish: best 0.59 (it0002); feasible 3 of the 3 that finished" in line

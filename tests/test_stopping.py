@@ -124,7 +124,7 @@ def test_precedence_and_closest_trigger(toy, tmp_path):
     state.family.registry["target"] = None
     assert first_trigger(state, Budgets(max_iters=2), elapsed_s=0).name == "max_iters"
     assert first_trigger(state, Budgets(max_iters=3), elapsed_s=0) is None
-    assert closest_trigger(state, Budgets(max_iters=4, max_runs=3), 0.0).startswith("runs 2/3")
+    assert closest_trigger(state, Budgets(max_iters=4, max_runs=3), 0.0).startswith("2 of 3 runs done")
 
 
 def test_verdict_and_threshold():

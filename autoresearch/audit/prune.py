@@ -309,7 +309,7 @@ def prune(
         elif family.target is None:
             kept = "loses no target (the family sets none)"
         else:
-            kept = "loses no target (the full recipe did not reach the family's either)"
+            kept = "loses no target (the full recipe did not reach the family's target either)"
         part["reason"] = f"the pruned recipe (without {', '.join(dropped)}) clears the gate and {kept}"
     if promotes:
         part["reason"] += (

@@ -132,8 +132,11 @@ def audit_table(campaign: AuditedCampaign, audit: dict[str, Any], other_arms: li
             units = f", {part['units']:+.1f}σ" if part.get("units") is not None else ""
             on = " on test" if part.get("split") == "test" else ""
             judged = (part.get("judged") or {}).get("random") or {}
+            missing = part["count"] - part["n_ran"]
             row(
-                f"{name} (best of {part['count']})",
+                f"{name} (best of {part['count']} draws"
+                + (f"; {missing} did not finish" if missing else "")
+                + ")",
                 _best_of(part),
                 _fmt(judged.get("test_metric")),
                 f"{part['n_feasible']} of {part['n_ran']}",
@@ -314,19 +317,42 @@ def _shown(verify: dict[str, Any]) -> dict[str, Any] | None:
     return _promoted(verify) or next((c for c in verify.get("candidates", []) if "mu_r" in c), None)
 
 
+def _value(value: Any) -> str:
+    """A parameter's value as a reader wants it: floats to 4 significant digits (the full value is in
+    the records), strings quoted as the editable block writes them."""
+    if isinstance(value, float):
+        return repr(float(f"{value:.4g}"))  # 0.0019101141930370157 -> 0.00191; 1.0 stays 1.0
+    return repr(value)
+
+
 def _changes(config: dict[str, Any], family: Family) -> str:
     """The edits of ``config`` from the family's baseline, among the parameters it records (one recorded
     before the family declared a parameter has none of it: that parameter is not an edit)."""
     baseline = family.baseline_config
     return (
         ", ".join(
-            f"{k}={config[k]!r}" for k in family.space.names if k in config and config[k] != baseline[k]
+            f"{k}={_value(config[k])}" for k in family.space.names if k in config and config[k] != baseline[k]
         )
         or "(baseline)"
     )
 
 
-def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[str]:
+def _excluded(c: dict[str, Any]) -> str:
+    """The reseeds left out of a candidate's mean, said in words ("none" when none was)."""
+    parts = []
+    if c["n_failed"]:
+        parts.append(f"{c['n_failed']} failed to run")
+    if c["n_parity_excluded"]:  # verify.py: trained far worse than the run it repeats (parity guard)
+        parts.append(f"{c['n_parity_excluded']} trained to over 2x the original run's loss")
+    return ", ".join(parts) or "none"
+
+
+def verify_section(
+    campaign: AuditedCampaign, verify: dict[str, Any], final: dict[str, Any] | None = None
+) -> list[str]:
+    """The reseeded verification. ``final``: what the whole audit promoted (:func:`certified`), which
+    pruning may have made the verified candidate's pruned recipe: the section then says so, so that
+    the report names one promoted recipe."""
     family = campaign.family
     if not verify:
         return ["Not run (`autoresearch verify --campaign DIR`)."]
@@ -337,7 +363,7 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
     lines = [f"Fresh seeds {verify.get('seeds')}; {verify['reason']}.", ""]
     reseeded = "Reseeded, search split | Reseeded, test split" if sealed else "Reseeded mean ± sd"
     lines += [
-        f"| Config | Edits | Single-seed (search) | {reseeded} | m ({split}) | Feasible | Excluded | Result |",
+        f"| Config | Edits | Single-seed (search) | {reseeded} | m ({split}) | Feasible | Reseeds left out | Result |",
         "|---|---|---|---|---|---|---|---|" + ("---|" if sealed else ""),
     ]
     for c in verify["candidates"]:
@@ -348,8 +374,8 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
                 f"{blank} — | — | — | {c.get('reason', 'not run')} |"
             )
             continue
-        excluded = f"{c['n_failed']} failed, {c['n_parity_excluded']} parity"
-        mark = " (promoted)" if c["config_id"] == verify["promoted"] else ""
+        excluded = _excluded(c)
+        mark = " (verified)" if c["config_id"] == verify["promoted"] else ""
         gated = _mean_sd(c["mu_r"], c["sigma_r"], c["n"])
         cells = " | ".join(_both(c, gated, split)) if sealed else gated
         lines.append(
@@ -362,9 +388,16 @@ def verify_section(campaign: AuditedCampaign, verify: dict[str, Any]) -> list[st
     lines.append("")
     if promoted:
         lines.append(
-            f"Promoted: **{promoted['config_id']}**, the passing candidate with the best pessimistic end of the "
+            f"Verified: **{promoted['config_id']}**, the passing candidate with the best pessimistic end of the "
             f"95% confidence interval of its reseeded mean on the {split} split (the most reproducible)."
         )
+        if final and final.get("promoted") and final["config_id"] != promoted["config_id"]:
+            lines.append(
+                f"Pruning then promoted its pruned recipe **{final['config_id']}** in its place (below, and the "
+                "headline): fewer edits, as reproducible."
+            )
+        elif final and final.get("promoted"):
+            lines.append("It is the promoted recipe (the headline).")
         by_split = promoted.get("by_split") or {}
         if (
             sealed
@@ -429,6 +462,12 @@ def tails_lines(verify: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _decision(d: dict[str, Any]) -> str:
+    """A pruning decision in words: prune.py's "drop-dagger" (a mark, read as the DAgger algorithm
+    beside the DAGGER_* parameters) is a drop that reverting showed to hurt: "drop, flagged"."""
+    return "drop, flagged" if d["decision"] == "drop-dagger" else d["decision"]
+
+
 def _unit_text(prune: dict[str, Any]) -> str:
     unit = prune.get("unit") or {"at": "baseline", "sigma": prune["noise"]["std"]}
     where = (
@@ -464,16 +503,20 @@ def prune_section(campaign: AuditedCampaign, prune: dict[str, Any]) -> list[str]
     for d in prune["decisions"]:
         d1 = f"{d['delta1_sigma']:+.2f}" if "delta1_sigma" in d else "—"
         d2 = f"{d['delta2_sigma']:+.2f}" if "delta2_sigma" in d else "—"
-        label = "drop†" if d["decision"] == "drop-dagger" else d["decision"]
+        label = _decision(d)
         lines.append(
-            f"| {d['param']} | {d['axis']} | {d['default']!r} → {d['value']!r} | {d1} | {d2} | {label} | {d['note'] or ''} |"
+            f"| {d['param']} | {d['axis']} | {_value(d['default'])} → {_value(d['value'])} | {d1} | {d2} | {label} "
+            f"| {d['note'] or ''} |"
         )
     lines += [
         "",
         f"Load-bearing: {', '.join(prune['kept']) or 'none'}. Dropped: {', '.join(prune['dropped']) or 'none'}.",
     ]
     if prune["flagged"]:
-        lines.append(f"Flagged † (reverting helps, moved the wrong way): {', '.join(prune['flagged'])}.")
+        lines.append(
+            f"Flagged (reverting the edit alone made the recipe better: the edit moved the metric the wrong "
+            f"way): {', '.join(prune['flagged'])}."
+        )
     pruned = prune.get("pruned")
     if pruned and "mu_r" in pruned:
         lines.append(
@@ -508,7 +551,7 @@ def pruning_sections(campaign: AuditedCampaign, audit: dict[str, Any]) -> list[s
                 cells.append("—")
                 continue
             delta = d.get("delta2_sigma", d.get("delta1_sigma"))
-            label = "drop†" if d["decision"] == "drop-dagger" else d["decision"]
+            label = _decision(d)
             cells.append(label + (f" ({delta:+.2f})" if delta is not None else ""))
         lines.append(f"| {param} | " + " | ".join(cells) + " |")
     for r in ran:
@@ -563,7 +606,9 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
         "",
         "## Reseeded verification",
         "",
-        *verify_section(campaign, audit.get("verify") or {}),
+        *verify_section(
+            campaign, audit.get("verify") or {}, certified(audit) if audit.get("verify") else None
+        ),
         "",
         "## Leave-one-out pruning",
         "",

@@ -48,12 +48,18 @@ def _number(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.6g}"
 
 
+def draws(part: dict) -> str:
+    """``4 draws, 1 did not finish``: a draw that failed or timed out is counted, not hidden."""
+    missing = part["count"] - part["n_ran"]
+    return f"{part['count']} draws" + (f", {missing} did not finish" if missing else "")
+
+
 def print_random(part: dict) -> None:
     best = part["best"]
     best_text = f"{best['metric']:.6g} ({best['run_id']})" if best else "none feasible"
     print(
-        f"random arm {part['dir']} ({part.get('space', 'random-range')} space): best of {part['count']}: "
-        f"{best_text}; feasible {part['n_feasible']} of {part['n_ran']}"
+        f"random arm {part['dir']} ({part.get('space', 'random-range')} space): {draws(part)}: best "
+        f"{best_text}; feasible {part['n_feasible']} of the {part['n_ran']} that finished"
     )
     units = f" ({part['units']:+.2f} sigma)" if part["units"] is not None else ""
     on = f" on the {part['split']} split" if part.get("split") == "test" else ""

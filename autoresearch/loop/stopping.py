@@ -100,13 +100,13 @@ def closest_trigger(state: CampaignState, budgets: Budgets, elapsed_s: float, bl
     if b.max_seconds:
         usage.append((elapsed_s / b.max_seconds, f"time {elapsed_s:.0f}/{b.max_seconds:g} s"))
     if b.max_runs:
-        usage.append((state.n_runs_ok / b.max_runs, f"runs {state.n_runs_ok}/{b.max_runs}"))
+        usage.append((state.n_runs_ok / b.max_runs, f"{state.n_runs_ok} of {b.max_runs} runs done"))
     if b.max_iters:
-        usage.append((state.iterations / b.max_iters, f"iterations {state.iterations}/{b.max_iters}"))
+        usage.append((state.iterations / b.max_iters, f"{state.iterations} of {b.max_iters} iterations done"))
     usage.append(
         (
             state.consecutive_failures / b.max_failures,
-            f"failures {state.consecutive_failures}/{b.max_failures}",
+            f"{state.consecutive_failures} of {b.max_failures} failures in a row",
         )
     )
     if b.max_cost_usd:
@@ -114,8 +114,8 @@ def closest_trigger(state: CampaignState, budgets: Budgets, elapsed_s: float, bl
     _, text = max(usage, key=lambda u: u[0])
     family = state.family
     if state.best is not None and family.target is not None and not blind:
-        gap = family.direction * (family.target - state.best_metric)
-        text += f" | target gap {gap:.3g}"
+        gap = family.direction * (family.target - state.best_metric)  # > 0: the best is short of it
+        text += f" | {gap:.3g} short of the target {family.target:g}" if gap > 0 else " | target reached"
     if _plateau_active(state, b):
         text += " | plateau"
     return text
