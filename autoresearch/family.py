@@ -78,6 +78,12 @@ class Family:
         return self.registry["metric"]
 
     @property
+    def metric_label(self) -> str:
+        """What the metric is, with its unit, for figures and reports: family.json's ``metric_label``,
+        else the metric's field name."""
+        return self.registry.get("metric_label") or self.metric
+
+    @property
     def direction(self) -> Direction:
         """sigma_dir: Direction.MAXIMIZE (+1) when larger metric values are better, MINIMIZE (-1) when smaller are."""
         return Direction.of(self.registry["direction"])
@@ -339,6 +345,9 @@ def _registry_problems(registry: Any, where: Path) -> tuple[SearchSpace | None, 
     for field in ("name", "metric"):
         if not isinstance(registry.get(field), str) or not registry[field]:
             bad(field, "must be a non-empty string")
+    label = registry.get("metric_label")
+    if label is not None and (not isinstance(label, str) or not label.strip()):
+        bad("metric_label", "must be a non-empty string or null (the metric in words, with its unit)")
     name = registry.get("name")
     if isinstance(name, str) and name and (not PLAIN_NAME.fullmatch(name) or ".." in name):
         bad("name", f"must be a plain name (letters, digits, '_', '-', '.'; no '/' or '..'), got {name!r}")

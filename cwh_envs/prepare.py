@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import sys
+import textwrap
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,6 +47,39 @@ def scored_per_split(record: dict, train, words: str) -> str:
         for name in SPLIT_WORDS
         if name in splits
     )
+
+
+TITLE_WIDTH = 110  # characters a report figure's title is wrapped at, so that no line is cut
+
+
+def policy_title(task: str, record: dict, train, words: str) -> str:
+    """A report figure's title: what the promoted policy scored on each split (:func:`scored_per_split`),
+    wrapped to whole lines; no run id (an internal name the reader cannot look up)."""
+    return textwrap.fill(
+        f"{task}, the promoted policy: " + scored_per_split(record, train, words), TITLE_WIDTH
+    )
+
+
+def legend_starts(ax, starts: np.ndarray, final: np.ndarray, colors, where: str = "upper right") -> None:
+    """A legend naming each start flown (its colour, how far out it began, where the policy ended)
+    and the two line styles: the policy solid, the expert dashed."""
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D(
+            [],
+            [],
+            color=color,
+            lw=1.6,
+            label=f"start {i + 1}: {np.linalg.norm(x0[:3]):.0f} m out, ended {d:.2g} m off",
+        )
+        for i, (x0, d, color) in enumerate(zip(starts, final, colors, strict=False))
+    ]
+    handles += [
+        Line2D([], [], color="gray", lw=1.6, label="policy (solid)"),
+        Line2D([], [], color="gray", lw=1.0, ls="--", label="expert (dashed)"),
+    ]
+    ax.legend(handles=handles, fontsize=7, loc=where)
 
 
 @dataclass(frozen=True)

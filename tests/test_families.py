@@ -244,6 +244,32 @@ def test_the_report_figure_names_each_split_with_its_own_count(name, warm, tmp_p
     assert test_part.startswith(words.format(test)) and test_part.endswith(
         "on the 24 sealed test-split starts\n"
     )
+    assert record["run_id"] not in shown  # an internal name the reader cannot look up (issue 59)
+
+
+def test_a_report_figures_title_is_whole_and_its_starts_have_a_legend():
+    """Issue 59: trajectories.png's title ran off both edges, showed a run id, and the five starts
+    had no legend. The title wraps to whole lines; the legend names each start and both line styles."""
+    from matplotlib.figure import Figure
+
+    from cwh_envs.prepare import TITLE_WIDTH, legend_starts, policy_title
+
+    train = type("Train", (), {"N_EVAL": 512, "N_TEST": 1024})
+    record = {"run_id": "prune-096f4c29-s16", "splits": {"search": {"d": 0.607}, "test": {"d": 0.661}}}
+    title = policy_title("Rendezvous", record, train, "mean terminal distance {d:.3g} m")
+    assert "prune-096f4c29" not in title and len(title.splitlines()) == 2
+    assert all(len(line) <= TITLE_WIDTH for line in title.splitlines())
+    assert title.replace("\n", " ").endswith("0.661 m on the 1024 sealed test-split starts")
+    ax = Figure().subplots()
+    starts = np.array([[100.0, 0, 0, 0, 0, 0], [0, 300.0, 400.0, 0, 0, 0]])
+    legend_starts(ax, starts, np.array([0.012, 1.5]), ["C0", "C1"])
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels == [
+        "start 1: 100 m out, ended 0.012 m off",
+        "start 2: 500 m out, ended 1.5 m off",
+        "policy (solid)",
+        "expert (dashed)",
+    ]
 
 
 def test_a_saved_runs_scores_are_worded_per_split():

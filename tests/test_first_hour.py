@@ -5,15 +5,17 @@ experiments with its legend beside the data."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from loop_helpers import copy_toy
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-from autoresearch.audit.figures import PlottedArm, search_figure
+from autoresearch.audit.figures import PlottedArm, recipe_figure, search_figure
 from autoresearch.campaign import Campaign, Status
 from autoresearch.family import Family
 from autoresearch.journal import read_json, read_jsonl
@@ -143,3 +145,30 @@ def test_the_search_figure_spans_the_experiments_and_keeps_its_legend_off_the_da
     assert legend.x0 > plot.x1  # beside the plot, not over it
     line = next(line for line in ax.get_lines() if line.get_label().endswith("best so far"))
     assert max(line.get_xdata()) == 6
+
+
+def test_the_figures_show_only_what_was_searched_with_units_and_every_run(tmp_path):
+    """Issue 59: recipe.png drew the parameters a protocol held as flat lines, without axis labels;
+    search.png's y-axis was a raw key, and a run that timed out was not drawn."""
+    toy = copy_toy(tmp_path)
+    registry = json.loads((toy / "family.json").read_text())
+    registry["protocols"] = {"narrow": {"exclude_axes": ["regularization"]}}
+    registry["metric_label"] = "toy loss (nats)"
+    (toy / "family.json").write_text(json.dumps(registry))
+    campaign = tmp_path / "c"
+    _random_loop(toy, campaign, 3, "--protocol", "narrow")
+    family = Family.load(toy).under_protocol("narrow")
+    records = Campaign(campaign).records()
+    fig = recipe_figure(records, family, tmp_path / "recipe.png", Campaign(campaign).registry())
+    titles = [ax.get_title() for ax in fig.axes]
+    assert titles and not any(t.startswith(("USE_NORM", "DROPOUT")) for t in titles), titles
+    assert any(t.startswith("LEARNING_RATE") for t in titles)
+    assert all(ax.get_ylabel() for ax in fig.axes) and any(ax.get_xlabel() == "experiment" for ax in fig.axes)
+    assert "on the search split" in fig._suptitle.get_text()
+    # A run that came back without a metric is drawn on the top edge, labelled.
+    timed_out = replace(records[1], status=Status.FAILED, metric=None, run_status="timeout")
+    arm = PlottedArm("random arm", "#1f77b4", [records[0], timed_out, *records[2:]])
+    (ax,) = search_figure([arm], family, None, tmp_path / "search.png").axes
+    assert ax.get_ylabel() == "toy loss (nats) (lower is better)"
+    labels = ax.get_legend_handles_labels()[1]
+    assert "random arm: did not finish (failed or timed out)" in labels

@@ -170,7 +170,12 @@ def test_an_audit_of_a_changed_family_measures_the_noise_again(audited, tmp_path
     old = copy.seed_noise
     assert stale_noise(copy) == [] and old["pinned"]["files"]["train.py"]
     train = copy.path / "train.py"
-    train.write_text(train.read_text() + "\n# a changed family\n")
+    # Prose is not code: a comment or a corrected docstring leaves the noise standing (issue 59) ...
+    source = train.read_text()
+    train.write_text(source.replace('"""', '"""Reworded. ', 1) + "\n# a comment\n")
+    assert stale_noise(Family.load(copy.path)) == [], source[:80]
+    # ... and a change to what runs stales it.
+    train.write_text(source + "\nCHANGED = 1\n")
     copy = Family.load(copy.path)
     assert [line.split(":")[0] for line in stale_noise(copy)] == ["train.py"]
     root = run_campaign(copy, tmp_path / "campaign", ScriptedProposer([P1]), iterations=2)

@@ -60,9 +60,13 @@ def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] 
     fig = Figure(figsize=(10.5, 4.5))
     ax = fig.add_subplot()
     values, last = [], 1
+    unfinished = []  # (arm, iterations) of the runs that started and came back without a metric
     for arm in arms:
         ran = arm.ran
         values += [r.metric for r in ran]
+        lost = [r.iteration for r in arm.records if r.status.started_a_run and not r.ran]
+        if lost:
+            unfinished.append((arm, lost))
         for feasible in (True, False):
             pts = [r for r in ran if bool(r.feasible) == feasible]
             ax.scatter(
@@ -93,10 +97,21 @@ def search_figure(arms: list[PlottedArm], family: Family, noise: dict[str, Any] 
         values.append(family.target)
     if values and min(values) > 0 and max(values) / min(values) >= LOG_SPAN:
         ax.set_yscale("log")
+    for arm, iterations in unfinished:  # drawn on the top edge: it has no value, but it cost a run
+        ax.scatter(
+            iterations,
+            [1.0] * len(iterations),
+            transform=ax.get_xaxis_transform(),
+            marker="x",
+            s=30,
+            color=arm.color,
+            clip_on=False,
+            label=f"{arm.label}: did not finish (failed or timed out)",
+        )
     better = "lower" if family.direction < 0 else "higher"
     ax.set(
-        xlabel="experiment",
-        ylabel=f"{family.metric} ({better} is better)",
+        xlabel="experiment (in the order proposed)",
+        ylabel=f"{family.metric_label} ({better} is better)",
         title="Search: every experiment, one seed each, on the search split",
         xlim=(0.5, last + 0.5),
     )
@@ -114,6 +129,17 @@ def recorded_params(records: list[Record], family: Family) -> list[str]:
     return [name for name in family.space.names if name in recorded]
 
 
+def searched(registry: dict[str, Any] | None, name: str) -> bool:
+    """Whether the campaign searched ``name``: False where its copy of family.json (``registry``, the
+    space it searched) holds it at one value, as a protocol holds the axes it excludes."""
+    spec = ((registry or {}).get("search_space") or {}).get(name)
+    if not isinstance(spec, dict):
+        return True
+    if "choices" in spec:
+        return len(spec["choices"]) > 1
+    return not ("low" in spec and spec.get("low") == spec.get("high"))
+
+
 def searched_choices(registry: dict[str, Any] | None, name: str) -> list[Any] | None:
     """The choices of categorical ``name`` in the campaign's copy of family.json (the space it searched),
     or None: a choice the family added since was never one of the campaign's."""
@@ -124,13 +150,14 @@ def searched_choices(registry: dict[str, Any] | None, name: str) -> list[Any] | 
 
 def recipe_figure(
     records: list[Record], family: Family, out: Path, registry: dict[str, Any] | None = None
-) -> None:
+) -> Figure:
     """How each parameter the campaign recorded moved: every run's value (dots) and the running
     best's value (line). A run without a parameter (recorded before the family declared it) has no
     dot for it, and no value is made up for it. A categorical's levels are those the campaign
-    searched (``registry``: its copy of family.json), else the family's."""
+    searched (``registry``: its copy of family.json), else the family's; a parameter the campaign's
+    protocol held at one value has no panel (a flat line says nothing). Returns the figure it saved."""
     ran = [r for r in records if r.ran]
-    names = recorded_params(ran, family)
+    names = [name for name in recorded_params(ran, family) if searched(registry, name)]
     ncols = max(1, min(3, len(names)))
     nrows = max(1, math.ceil(len(names) / ncols))
     fig = Figure(figsize=(4 * ncols, 2.3 * nrows))
@@ -165,11 +192,19 @@ def recipe_figure(
         elif param.type == "log-real":
             ax.set_yscale("log")
         ax.set_title(f"{name} ({param.axis})", fontsize=9)
+        ax.set_ylabel("value", fontsize=7)
+        if i > len(names) - ncols:  # the bottom row
+            ax.set_xlabel("experiment", fontsize=7)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.tick_params(labelsize=7)
-    fig.suptitle("Recipe: each parameter over the campaign (line: the running best's value)", fontsize=10)
+    fig.suptitle(
+        "Recipe: each parameter the campaign searched, per experiment (dots: every run's value; line: the "
+        "value of the best run so far, on the search split)",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(out, dpi=110)
+    return fig
 
 
 def promoted_policy(campaign: AuditedCampaign, audit: dict[str, Any]) -> tuple[str, Path] | str:

@@ -6,12 +6,15 @@ part of its audit. Runs are logged as they finish; a re-run skips the seeds alre
 ``k`` extends the same seed list (the plan is deterministic). For a family with a sealed test
 split the same runs are scored on it too: ``seed_noise["test"]`` holds that split's mean, std and
 values (never shown to a proposer: autoresearch.family.search_view). ``seed_noise["pinned"]`` holds
-what the numbers depend on (the baseline configuration, train.py and prepare.py), so that an audit
-of a changed family measures the noise again instead of gating on stale numbers.
+what the numbers depend on (the baseline configuration, and the code of train.py and prepare.py
+without their docstrings and comments), so that an audit of a changed family measures the noise
+again instead of gating on stale numbers, and a corrected docstring does not.
 """
 
 from __future__ import annotations
 
+import ast
+import hashlib
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -116,11 +119,46 @@ def _spread(scores: list[Score]) -> dict[str, Any]:
     }
 
 
+CODE_HASH = "code"  # pinned["hash"]: PINNED_FILES hashed as code, without docstrings and comments
+
+
+def code_hash(path: Path) -> str | None:
+    """sha256 (16 hex digits) of a Python file's code: its syntax tree without docstrings, so that
+    comments and prose (a docstring corrected to match a constant) leave the noise measured on it
+    standing, while any change to what runs stales it. A file that does not parse hashes its bytes."""
+    if not path.is_file():
+        return None
+    source = path.read_bytes()
+    try:
+        tree = ast.parse(source)
+    except (SyntaxError, ValueError):
+        return hashlib.sha256(source).hexdigest()[:16]
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (
+            isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+            and body
+            and isinstance(body[0], ast.Expr)
+            and isinstance(body[0].value, ast.Constant)
+            and isinstance(body[0].value.value, str)
+        ):
+            node.body = body[1:] or [ast.Pass()]
+    return hashlib.sha256(ast.dump(tree).encode()).hexdigest()[:16]
+
+
 def pins(family: Family) -> dict[str, Any]:
-    """What the seed noise depends on, as it is now: the baseline configuration and the hashes of
-    PINNED_FILES."""
+    """What the seed noise depends on, as it is now: the baseline configuration and the code of
+    PINNED_FILES (:func:`code_hash`)."""
+    files = {name: code_hash(family.path / name) for name in PINNED_FILES}
+    return {"baseline": family.baseline_config, "files": files, "hash": CODE_HASH}
+
+
+def _pinned_now(family: Family, pinned: dict[str, Any]) -> dict[str, str | None]:
+    """PINNED_FILES hashed as ``pinned`` hashed them: as code, or (noise pinned before that) as bytes."""
+    if pinned.get("hash") == CODE_HASH:
+        return pins(family)["files"]
     hashes = family_hashes(family.path)
-    return {"baseline": family.baseline_config, "files": {name: hashes[name] for name in PINNED_FILES}}
+    return {name: hashes[name] for name in PINNED_FILES}
 
 
 def stale_noise(family: Family) -> list[str]:
@@ -136,13 +174,13 @@ def stale_noise(family: Family) -> list[str]:
     pinned = noise.get("pinned")
     if not isinstance(pinned, dict):
         return found
-    now, files = pins(family), pinned.get("files") or {}
+    files = pinned.get("files") or {}
     found += [
         f"{name}: sha256 {files.get(name)} -> {sha}"
-        for name, sha in now["files"].items()
+        for name, sha in _pinned_now(family, pinned).items()
         if files.get(name) != sha
     ]
-    if pinned.get("baseline") != now["baseline"]:
+    if pinned.get("baseline") != family.baseline_config:
         found.append("the baseline configuration")
     return found
 

@@ -618,14 +618,23 @@ def write_report(campaign_dir: Path, arms: list[Path] = (), out_dir: Path | None
         "",
         "![search](search.png)",
         "",
-        "Every experiment of each arm (filled: feasible, hollow: infeasible) and each arm's running best; "
+        "Every experiment of each arm on the search split, one seed each (filled: feasible, hollow: "
+        "infeasible; x on the top edge: a run that failed or timed out), and each arm's running best; "
         "the gray band is the baseline's mean ± σ.",
         "",
         "![recipe](recipe.png)",
         "",
+        "How each parameter the campaign searched moved over its experiments: every run's value (dots) and "
+        "the value of the best run so far (line). Parameters the protocol held at the baseline are left out.",
+        "",
     ]
     if hook_note is None:
-        lines += ["![trajectories](trajectories.png)", "", "The family's own figure for the promoted policy."]
+        lines += [
+            "![trajectories](trajectories.png)",
+            "",
+            "The family's own figure for the promoted policy: its first search-split starts flown beside the "
+            "optimal-control expert's trajectories.",
+        ]
     else:
         lines.append(f"No family figure: {hook_note}.")
     if (family.path / "export.py").is_file():

@@ -22,7 +22,7 @@ import numpy as np
 
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.experts import solve_docking
-from cwh_envs.prepare import load_train, scored_per_split
+from cwh_envs.prepare import legend_starts, load_train, policy_title
 
 HERE = Path(__file__).resolve().parent
 
@@ -82,15 +82,14 @@ def main() -> int:
     distance.set_title(
         f"terminal distance: mean {final.mean():.3g} m over these {len(starts)} search-split starts"
     )
+    legend_starts(distance, starts, final, plt.cm.tab10.colors)
     record = saved.get("record", {})
-    title = f"docking policy {record.get('run_id', '')}: " + scored_per_split(
-        record, train, "score {score:.3g}, strict-feasible {strict_feasible}"
-    )
-    fig.suptitle(title)
+    title = policy_title("Docking", record, train, "score {score:.3g}, strict-feasible {strict_feasible}")
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=120)
-    print(f"wrote {args.out}: {title}")
+    print(f"wrote {args.out}: {title}".replace("\n", " "))
     return 0
 
 

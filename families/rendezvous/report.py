@@ -20,7 +20,7 @@ import numpy as np
 
 from cwh_envs.datasets import evaluation_starts
 from cwh_envs.experts import solve_rendezvous
-from cwh_envs.prepare import load_train, scored_per_split
+from cwh_envs.prepare import legend_starts, load_train, policy_title
 
 HERE = Path(__file__).resolve().parent
 
@@ -56,15 +56,15 @@ def main() -> int:
     norms.set_title(
         f"terminal distance: mean {final.mean():.3g} m over these {len(starts)} search-split starts"
     )
-    record = saved.get("record", {})
-    title = f"rendezvous policy {record.get('run_id', '')}: " + scored_per_split(
-        record, train, "mean terminal distance {mean_terminal_distance:.3g} m"
+    legend_starts(norms, starts, final, plt.cm.tab10.colors)
+    title = policy_title(
+        "Rendezvous", saved.get("record", {}), train, "mean terminal distance {mean_terminal_distance:.3g} m"
     )
-    fig.suptitle(title)
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=120)
-    print(f"wrote {args.out}: {title}")
+    print(f"wrote {args.out}: {title}".replace("\n", " "))
     return 0
 
 
