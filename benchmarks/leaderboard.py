@@ -39,6 +39,7 @@ and dispersed, partly beside another job), which its row says.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import json
 import os
@@ -52,6 +53,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from autoresearch.campaign import Campaign
 from autoresearch.editable import patch
 from autoresearch.execution.runner import TIME_BUDGET_ENV
 from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback, pd_action
@@ -59,6 +61,7 @@ from cwh_envs.core import filter_actions
 from cwh_envs.datasets import evaluation_set
 from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.prepare import load_train
+from cwh_envs.robust_cbf import ErrorBounds
 from cwh_envs.rollout import fly
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,6 +73,10 @@ SB3_PROBLEM = {
 }
 MPC_STARTS = {"docking-constrained": 32}  # the rest fly every start of the split
 TIMED_STARTS = 8  # starts flown one at a time for the compute column (MPC on constrained docking: 2)
+# Dispersed flights of every row (issue 58): the families' DISPERSIONS (1 sigma) and the same scaled
+# by 3, the stress set the constrained family reports beside its auxiliary.
+DISPERSION_LEVELS = {"1sigma": 1.0, "3sigma": 3.0}
+ROBUST_K_SIGMA = 3.0  # the robust filter's rows: sized for the 1-sigma set at 3 sigma, as the family's lever
 SUBSET = 16  # deterministic rows also keep their metric on the first SUBSET starts (tests re-measure it)
 # The best recipe a key-free agent campaign certified on each task (the audit's promoted config), as
 # committed; the family's own promoted best is read from its family.json.
@@ -183,7 +190,15 @@ class Task:
             return self.train.docking_metrics(flight, expert)
         return self.train.rendezvous_metrics(flight, expert)
 
-    def fly(self, policy, cbf: bool, starts: int | None = None, dispersed: bool = False):
+    @property
+    def bounds(self) -> ErrorBounds:
+        """The robust filter's error bounds: the 1-sigma dispersions at ROBUST_K_SIGMA."""
+        return ErrorBounds.from_dispersions(self.dispersions, k_sigma=ROBUST_K_SIGMA)
+
+    def fly(
+        self, policy, cbf: bool, starts: int | None = None, scale: float | None = None, robust: bool = False
+    ):
+        """Nominal, or under the dispersions scaled by ``scale`` (the filter on the estimate)."""
         held = self.held_out if starts is None else self.held_out.take(starts)
         return fly(
             self.problem,
@@ -191,7 +206,8 @@ class Task:
             held.starts,
             held.goals if self.docking else None,
             cbf_margin=self.problem.margin if cbf else None,
-            dispersions=self.dispersions if dispersed else None,
+            cbf_bounds=self.bounds if robust else None,
+            dispersions=None if scale is None else {k: scale * v for k, v in self.dispersions.items()},
             dispersion_seed=getattr(self.train, "DISPERSION_SEED", 0),
         )
 
@@ -208,6 +224,7 @@ class Entry:
     config: dict = field(default_factory=dict)
     time_budget: float | None = None  # training seconds train.py is granted (the recipe's, when certified so)
     starts: int | None = None  # fewer starts than the split (MPC on constrained docking)
+    robust: bool = False  # through the robust filter (cwh_envs.robust_cbf), sized by Task.bounds
 
 
 class OpenLoop:
@@ -261,6 +278,22 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
             if task.name == "docking-constrained"
             else []
         ),
+        *(
+            [  # the law above it through the robust filter (issue 58): the price of robustness beside it
+                Entry(
+                    f"{'routed' if task.name == 'docking-constrained' else 'closed-form'} feedback + robust CBF",
+                    "classical",
+                    True,
+                    (lambda seed: WaypointFeedback(problem))
+                    if task.name == "docking-constrained"
+                    else (lambda seed: MinEnergyFeedback(plain)),
+                    f"cwh_envs.robust_cbf (ErrorBounds of the 1-sigma DISPERSIONS, k={ROBUST_K_SIGMA:g})",
+                    robust=True,
+                )
+            ]
+            if docking
+            else []
+        ),
         Entry(
             "PD" + (" + CBF" if docking else ""),
             "classical",
@@ -276,7 +309,7 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
         recipe = (best["config"], best.get("time_budget"))
         recipes.append(("family best (BC)", f"families/{task.name}/family.json best", *recipe))
     source, config = AGENT_RECIPES[task.name]
-    recipes.append(("key-free agent best (BC)", source, config, None))
+    recipes.append((FIRST_CAMPAIGN, source, config, None))
     for name, source, config, budget in recipes:
         cbf = bool({**task.defaults(), **config}.get("RUNTIME_CBF_FILTER", False))
         rows.append(
@@ -303,14 +336,51 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
     return rows
 
 
+FIRST_CAMPAIGN = "first GP campaign (BC)"  # AGENT_RECIPES: the first key-free campaign's certified recipe
+
+
+def produced_by(campaign: str) -> str:
+    """What produced a learned row's recipe, in words: the campaign's proposer, protocol or space,
+    runs and their budget, and whether it started from a recipe or from earlier campaigns."""
+    root = ROOT / campaign
+    meta = json.loads((root / "campaign.json").read_text(encoding="utf-8"))
+    settings = meta["settings"]
+    runs = sum(r.status.started_a_run for r in Campaign(root).records())  # the baseline included
+    where = (
+        f"{settings['protocol']} protocol"
+        if settings.get("protocol")
+        else {"random-range": "random-range space", "bounds": "bounds space"}.get(
+            settings.get("space"), "whole space"
+        )
+    )
+    budget = (
+        f"{runs} runs of {settings['time_budget']:g} s" if settings.get("time_budget") else f"{runs} runs"
+    )
+    parts = [f"{meta['proposer'].upper()} campaign", where, budget]
+    if settings.get("enqueue"):
+        parts.append("a hand recipe enqueued")
+    if settings.get("warm_start"):
+        parts.append("warm-started")
+    return ", ".join(parts) + f" ({campaign})"
+
+
+def family_best_campaign(task: str) -> str | None:
+    """The campaign the family's promoted best came from (its ledger's last promotion)."""
+    ledger = json.loads((ROOT / "families" / task / "ledger.json").read_text(encoding="utf-8"))
+    promotions = ledger.get("promotions") or []
+    return (promotions[-1].get("source") or {}).get("campaign") if promotions else None
+
+
 ROW_ORDER = (
     "open-loop expert",
     "MPC",
     "closed-form feedback",
     "routed feedback",
+    "closed-form feedback + robust CBF",
+    "routed feedback + robust CBF",
     "PD",
     "family best (BC)",
-    "key-free agent best (BC)",
+    "first GP campaign (BC)",
     "SB3 PPO",
     "SB3 SAC",
 )
@@ -318,7 +388,7 @@ ROW_ORDER = (
 
 def rank(controller: str) -> int:
     """A row's place in its task's table (a row measured again keeps its place)."""
-    return ROW_ORDER.index(controller.removesuffix(" + CBF"))
+    return ROW_ORDER.index(controller if controller in ROW_ORDER else controller.removesuffix(" + CBF"))
 
 
 def slug(name: str) -> str:
@@ -411,7 +481,7 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
     per_seed = []
     for seed in seeds if entry.kind != "classical" else [None]:
         policy = entry.make(seed)
-        flight = task.fly(policy, entry.cbf, entry.starts)
+        flight = task.fly(policy, entry.cbf, entry.starts, robust=entry.robust)
         metrics = task.metrics(flight)
         result = {
             "seed": seed,
@@ -421,15 +491,24 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
         }
         if isinstance(policy, RecedingHorizon):
             result["mpc"] = mpc_counts(policy)
-        disturbed = entry.make(seed)
-        dispersed = task.fly(disturbed, entry.cbf, entry.starts, dispersed=True)
-        result["dispersed_success_rate"] = float(dispersed.is_success.mean())
-        if isinstance(disturbed, RecedingHorizon):  # a disturbed state can leave every re-solve infeasible
-            result["mpc_dispersed"] = mpc_counts(disturbed)
+        result["dispersed"] = {}
+        for level, scale in DISPERSION_LEVELS.items():
+            disturbed = entry.make(seed)
+            dispersed = task.fly(disturbed, entry.cbf, entry.starts, scale, entry.robust)
+            result["dispersed"][level] = dispersed_summary(dispersed)
+            if isinstance(
+                disturbed, RecedingHorizon
+            ):  # a disturbed state can leave every re-solve infeasible
+                result["dispersed"][level]["mpc"] = mpc_counts(disturbed)
+        result["dispersed_success_rate"] = result["dispersed"]["1sigma"]["success_rate"]
         if entry.kind == "classical":
             n = min(SUBSET, len(flight.terminal_distance))
             # A row that flies no more than SUBSET starts (MPC on constrained docking) is its own subset.
-            first = flight if n == len(flight.terminal_distance) else task.fly(entry.make(seed), entry.cbf, n)
+            first = (
+                flight
+                if n == len(flight.terminal_distance)
+                else task.fly(entry.make(seed), entry.cbf, n, robust=entry.robust)
+            )
             result["subset"] = {"n_starts": n, "metric": task.metrics(first)[task.train.METRIC]}
         per_seed.append(result)
     return {"per_seed": per_seed}
@@ -442,6 +521,27 @@ def mpc_counts(policy: RecedingHorizon) -> dict:
         "fallbacks": int(policy.fallbacks.sum()),
         "soft_replans": int(policy.soft.sum()),
     }
+
+
+def dispersed_summary(flight) -> dict:
+    """One dispersed flight: its success, and per constraint the problem has, the starts breaking it
+    (beyond the env's tolerances, as the score counts) and the deepest violation (m, m/s, m)."""
+    out = {"success_rate": float(flight.is_success.mean()), "breaking_starts": {}, "deepest": {}}
+    for name, rate, depth in (
+        ("keep_out", flight.violation_rate, flight.keep_out_depth),
+        ("speed", flight.speed_violation_rate, flight.speed_depth),
+        ("cone", flight.cone_violation_rate, flight.cone_depth),
+    ):
+        if rate is not None and depth is not None:
+            out["breaking_starts"][name] = int((rate > 0).sum())
+            out["deepest"][name] = float(depth.max())
+    broken = [
+        rate > 0
+        for rate in (flight.violation_rate, flight.speed_violation_rate, flight.cone_violation_rate)
+        if rate is not None
+    ]
+    out["violating_starts"] = int(np.any(broken, axis=0).sum()) if broken else 0
+    return out
 
 
 def violation_rates(task: Task, flight) -> dict | None:
@@ -479,6 +579,7 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
             held.starts[i : i + 1],
             held.goals[i : i + 1] if task.docking else None,
             cbf_margin=task.problem.margin if entry.cbf else None,
+            cbf_bounds=task.bounds if entry.robust else None,
         )
         if isinstance(policy, RecedingHorizon):
             seconds = np.array(policy.solve_seconds)
@@ -488,7 +589,14 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
                 for k, (_, _, action) in enumerate(calls):
                     state, goal = flight.states[:, k], flight.goals
                     started = time.perf_counter()
-                    filter_actions(np.clip(action, -1.0, 1.0), state, task.problem, task.problem.margin, goal)
+                    filter_actions(
+                        np.clip(action, -1.0, 1.0),
+                        state,
+                        task.problem,
+                        task.problem.margin,
+                        goal,
+                        task.bounds if entry.robust else None,
+                    )
                     seconds[k] += time.perf_counter() - started
         samples.append(seconds)
     seconds = np.concatenate(samples) * 1e6
@@ -545,6 +653,14 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
             "metric_per_seed": values,
             "metric_std": float(np.std(values, ddof=1)) if len(values) > 1 else None,
         }
+    if entry.kind == "bc":
+        campaign = (
+            family_best_campaign(task.name)
+            if entry.name == "family best (BC)"
+            else entry.source.split(" ")[0]
+        )
+        if campaign:
+            out["produced_by"] = produced_by(campaign)
     if entry.config:
         out["config"] = entry.config
     if entry.time_budget:
@@ -554,9 +670,31 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
     for counts in ("mpc", "mpc_dispersed"):
         if counts in per_seed[0]:
             out[counts] = per_seed[0][counts]
+    if "dispersed" in per_seed[0]:  # flown at every level (issue 58); older rows keep their 1-sigma success
+        out["dispersed"] = {
+            level: dispersed_over_seeds([r["dispersed"][level] for r in per_seed])
+            for level in DISPERSION_LEVELS
+        }
+    if entry.robust:
+        out["robust_bounds"] = {"from": "1-sigma DISPERSIONS", "k_sigma": ROBUST_K_SIGMA}
     if task.docking:
         out |= flight(task)
     return out
+
+
+def dispersed_over_seeds(summaries: list[dict]) -> dict:
+    """A dispersion level over the seeds: success and breaking starts as the mean, each constraint's
+    deepest violation as the worst of any seed."""
+    return {
+        "success_rate": float(np.mean([s["success_rate"] for s in summaries])),
+        "violating_starts": float(np.mean([s["violating_starts"] for s in summaries])),
+        "breaking_starts": {
+            name: float(np.mean([s["breaking_starts"][name] for s in summaries]))
+            for name in summaries[0]["breaking_starts"]
+        },
+        "deepest": {name: max(s["deepest"][name] for s in summaries) for name in summaries[0]["deepest"]},
+        **({"mpc": summaries[0]["mpc"]} if "mpc" in summaries[0] else {}),
+    }
 
 
 def flight(task: Task) -> dict:
@@ -587,8 +725,9 @@ def markdown(rows: list[dict]) -> str:
             f"### {task} (test split, {starts}; metric: {block[0]['metric_name']}, lower is better)",
             "",
             "| controller | metric | success | violation rate (per constraint) | p99 / max terminal distance [m] "
-            "| Δv / expert | energy / expert | µs per step (p50 / p99) | success under dispersions | note |",
-            "|---|---:|---:|---|---:|---:|---:|---:|---:|---|",
+            "| Δv / expert | energy / expert | µs per step (p50 / p99) | dispersed success 1σ / 3σ "
+            "| starts broken under dispersions (deepest) | note |",
+            "|---|---:|---:|---|---:|---:|---:|---:|---:|---|---|",
         ]
         for r in block:
             metric = fmt(r["metric"])
@@ -625,13 +764,82 @@ def markdown(rows: list[dict]) -> str:
                 notes.append("dispersed with the filter fed the true state (flown before issue 58)")
             if "cone" in (r["violation_rate"] or {}) and "capture_radius" not in r:
                 notes.append("cone scored with its apex on the port (before issue 58's capture envelope)")
+            levels = r.get("dispersed")
+            if levels is None:
+                notes.append("3σ not flown (measured before issue 58)")
+                dispersed, broken = f"{r['dispersed_success_rate']:.1%} / -", "-"
+            else:
+                dispersed = " / ".join(f"{levels[level]['success_rate']:.1%}" for level in DISPERSION_LEVELS)
+                broken = "<br>".join(
+                    f"{level.replace('sigma', 'σ')}: {broken_cell(levels[level])}"
+                    for level in DISPERSION_LEVELS
+                )
+            name = r["controller"] + (f"<br><sub>{r['produced_by']}</sub>" if r.get("produced_by") else "")
             lines.append(
-                f"| {r['controller']} | {metric} | {r['success_rate']:.1%} | {rates} | "
+                f"| {name} | {metric} | {r['success_rate']:.1%} | {rates} | "
                 f"{fmt(r['p99_terminal_distance'])} / {fmt(r['max_terminal_distance'])} | {fmt(r['delta_v_ratio'])} | "
-                f"{fmt(r['energy_ratio'])} | {timing} | {r['dispersed_success_rate']:.1%} | {'; '.join(notes)} |"
+                f"{fmt(r['energy_ratio'])} | {timing} | {dispersed} | {broken} | {'; '.join(notes)} |"
             )
         lines.append("")
     return "\n".join(lines)
+
+
+# The README's table per task (summary): the best learned policy beside MPC, the closed-form law (and
+# the robust filter's row, on docking) and PD.
+SUMMARY_ROWS = ("family best (BC)", "MPC", "closed-form feedback", "routed feedback", "robust CBF", "PD")
+SUMMARY_START, SUMMARY_END = "<!-- leaderboard summary: start -->", "<!-- leaderboard summary: end -->"
+
+
+def summary(rows: list[dict]) -> str:
+    """The README's leaderboard: one compact table per task, written from leaderboard.json (the
+    README holds it between SUMMARY_START and SUMMARY_END; a test keeps the two equal)."""
+    lines = []
+    for task in dict.fromkeys(r["task"] for r in rows):
+        block = [r for r in rows if r["task"] == task and any(k in r["controller"] for k in SUMMARY_ROWS)]
+        block.sort(key=lambda r: r["kind"] == "classical")  # the learned row first, then as ranked
+        n = max(r["n_starts"] for r in block)
+        lines += [
+            f"**{task}** ({block[0]['metric_name']}, lower is better; sealed test split, {n} starts)",
+            "",
+            "| controller | metric | success | dispersed success 1σ / 3σ | energy / expert | µs per step |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        for r in block:
+            levels = r.get("dispersed")
+            dispersed = (
+                " / ".join(f"{levels[level]['success_rate']:.1%}" for level in DISPERSION_LEVELS)
+                if levels
+                else f"{r['dispersed_success_rate']:.1%} / -"
+            )
+            starts = f" (first {r['n_starts']} starts)" if r["n_starts"] != n else ""
+            lines.append(
+                f"| {r['controller']}{starts} | {fmt(r['metric'])} | {r['success_rate']:.1%} | {dispersed} "
+                f"| {fmt(r['energy_ratio'])} | {fmt(r['us_per_step']['p50'])} |"
+            )
+        lines.append("")
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def write_readme_summary(readme: Path, text: str) -> None:
+    """Replace the README's leaderboard tables (between SUMMARY_START and SUMMARY_END) by ``text``."""
+    page = readme.read_text(encoding="utf-8")
+    head, rest = page.split(SUMMARY_START + "\n", 1)
+    tail = rest.split(SUMMARY_END, 1)[1]
+    readme.write_text(f"{head}{SUMMARY_START}\n{text}{SUMMARY_END}{tail}", encoding="utf-8")
+
+
+UNITS = {"keep_out": "m", "speed": "m/s", "cone": "m"}
+
+
+def broken_cell(level: dict) -> str:
+    """``speed 1 (1.7e-04 m/s)``: each constraint some start broke, how many starts (mean over
+    seeds) and the deepest violation; "none" where every start kept every constraint."""
+    parts = [
+        f"{name} {fmt(starts)} ({fmt(level['deepest'][name])} {UNITS[name]})"
+        for name, starts in level["breaking_starts"].items()
+        if starts > 0
+    ]
+    return ", ".join(parts) if parts else ("none" if level["breaking_starts"] else "-")
 
 
 def plot(rows: list[dict], task: str, path: Path) -> None:
@@ -694,6 +902,8 @@ def main(argv=None) -> None:
                 **({"time_budget": entry.time_budget} if entry.time_budget else {}),
                 # how a docking row is scored and flown dispersed (issue 58): a row cached before is stale
                 **({"flight": flight(task)} if task.docking else {}),
+                "dispersion_levels": DISPERSION_LEVELS,
+                **({"robust": dataclasses.asdict(task.bounds)} if entry.robust else {}),
             }
             cached = (
                 json.loads(cache.read_text(encoding="utf-8")) if cache.exists() and not args.fresh else {}
@@ -721,6 +931,9 @@ def main(argv=None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     out_json.write_text(json.dumps(rows, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     (args.out / "leaderboard.md").write_text(markdown(rows), encoding="utf-8")
+    (args.out / "leaderboard-summary.md").write_text(summary(rows), encoding="utf-8")
+    if args.out.resolve() == (ROOT / "results").resolve():  # the README shows the same tables
+        write_readme_summary(ROOT / "README.md", summary(rows))
     for task in dict.fromkeys(r["task"] for r in rows):
         plot(rows, task, args.out / f"leaderboard_{task}.png")
     print(f"wrote {out_json}, leaderboard.md and one PNG per task to {args.out}")

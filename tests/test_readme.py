@@ -17,6 +17,7 @@ from loop_helpers import copy_toy
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
+INSTALL = (ROOT / "docs" / "install.md").read_text(encoding="utf-8")  # the README links it
 
 
 def _section(title: str) -> str:
@@ -34,7 +35,7 @@ def test_the_quickstart_prints_what_the_readme_says_and_why():
 
 
 def test_the_install_from_a_checkout_the_readme_gives_installs(tmp_path):
-    install = _section("Install by need")
+    install = _section("Install")
     assert "Until cwh-autoresearch is published on PyPI" in install
     checkout = re.search(r'^pip install "\.\[all\]"', install, re.M).group(0)
     # What that line asks of pip, resolved without touching the network or this environment.
@@ -60,7 +61,7 @@ def without_torch(tmp_path) -> dict[str, str]:
 
 
 def test_a_familys_missing_extra_ends_check_and_loop_as_the_readme_says(tmp_path, without_torch):
-    assert "`autoresearch check --family` lists it as the family's problem" in README
+    assert "`autoresearch check --family` lists it as the family's problem" in INSTALL
     extra = "this family trains with torch, which is not installed: pip install 'cwh-autoresearch[families]'"
     family = ROOT / "families" / "rendezvous"
     cli = [sys.executable, "-m", "autoresearch"]
@@ -84,7 +85,7 @@ def test_a_familys_missing_extra_ends_check_and_loop_as_the_readme_says(tmp_path
 
 
 def test_autoresearchs_own_missing_extra_is_one_line_and_exit_2(tmp_path, without_torch):
-    assert "is one line naming it, before\nanything runs (`autoresearch` exits 2)" in README
+    assert "is one line naming it, before\nanything runs (`autoresearch` exits 2)" in INSTALL
     toy = copy_toy(tmp_path)
     loop = [sys.executable, "-m", "autoresearch", "loop", "--family", toy, "--proposer", "gp"]
     done = subprocess.run(
@@ -93,3 +94,35 @@ def test_autoresearchs_own_missing_extra_is_one_line_and_exit_2(tmp_path, withou
     assert done.returncode == 2
     (line,) = done.stderr.strip().splitlines()
     assert "pip install 'cwh-autoresearch[gp]'" in line and not (tmp_path / "c" / "proposals.jsonl").exists()
+
+
+def test_the_readme_is_a_front_page():
+    """Issue 59: 415 lines opening on a research log. At most about 150 lines now: what it is, the two
+    commands, the quickstarts, the leaderboard, links; the research log is docs/findings.md."""
+    assert len(README.splitlines()) <= 155
+    titles = re.findall(r"^## (.+)$", README, re.M)
+    assert titles[:4] == ["Two commands", "Quickstart", "Leaderboard", "Install"], titles
+    assert "bash scripts/main.sh" in _section("Two commands") and "bash scripts/test.sh" in _section(
+        "Two commands"
+    )
+    assert "(docs/findings.md)" in README and (ROOT / "docs" / "findings.md").is_file()
+
+
+@pytest.mark.needs("families")  # the leaderboard script imports the families' extras
+def test_the_readmes_leaderboard_is_the_committed_one():
+    """The README's tables are written from results/leaderboard.json (benchmarks/leaderboard.py's
+    summary), never typed: the numbers a newcomer reads are the ones measured."""
+    import importlib.util
+    import json
+
+    spec = importlib.util.spec_from_file_location("leaderboard", ROOT / "benchmarks" / "leaderboard.py")
+    board = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = board
+    spec.loader.exec_module(board)
+    rows = json.loads((ROOT / "results" / "leaderboard.json").read_text(encoding="utf-8"))
+    block = README.split(board.SUMMARY_START + "\n", 1)[1].split(board.SUMMARY_END, 1)[0]
+    assert block == board.summary(rows)
+    assert (ROOT / "results" / "leaderboard-summary.md").read_text(encoding="utf-8") == block
+    for task in ("rendezvous", "docking", "docking-constrained"):
+        assert f"**{task}**" in block
+    assert "family best (BC)" in block and "MPC" in block and "PD" in block
