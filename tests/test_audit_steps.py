@@ -128,6 +128,9 @@ def test_a_best_certified_under_limits_is_replaced_only_under_limits_as_tight(tm
     assert "is true and it reports `loss` <= 5000 (the protocol's limits)" in text
     again = certify("plain-again")  # as reproducible, held to no limit
     assert not again["family_best"]["updated"] and "limits" in again["family_best"]["why"]
+    # In words (issue 59): where the best came from and its limits, never a dict.
+    why = again["family_best"]["why"]
+    assert "{" not in why and "(run it0002 of capped, verified)" in why and "(loss <= 5000)" in why
 
 
 def test_prune_decides_every_case_of_eq_loodecision(scenario_a):

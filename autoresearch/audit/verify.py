@@ -217,6 +217,20 @@ def _at_least_as_tight(limits: dict[str, float], than: dict[str, float]) -> bool
     return all(name in limits and limits[name] <= bound for name, bound in than.items())
 
 
+def _named(source: dict[str, Any]) -> str:
+    """Where a best came from, in words: ``run it0010 of results/x, verified``, not a dict."""
+    if not source.get("campaign"):
+        return "of an earlier audit"
+    run = f"run {source['run_id']} of " if source.get("run_id") else ""
+    step = {"verify": "verified", "prune": "pruned"}.get(source.get("step"), source.get("step") or "")
+    return f"{run}{source['campaign']}" + (f", {step}" if step else "")
+
+
+def _limits(limits: dict[str, Any]) -> str:
+    """``effort_ratio <= 1.5``, or ``none``."""
+    return ", ".join(f"{name} <= {value:g}" for name, value in limits.items()) or "none"
+
+
 def _replaces_family_best(
     current: dict[str, Any] | None, family: Family, candidate: dict[str, Any], campaign: AuditedCampaign
 ) -> tuple[bool, str]:
@@ -227,6 +241,7 @@ def _replaces_family_best(
     if not current:
         return True, "the family had no best"
     source = current.get("source") or {}
+    named = _named(source)
     if is_this_campaign(source, campaign):
         return True, "replaces this campaign's earlier promotion"
     if current.get("std") is None or (current.get("n") or 0) < 2:
@@ -236,18 +251,18 @@ def _replaces_family_best(
     current_split, split = current.get("split", Split.SEARCH.value), candidate["split"]
     held, holds = current.get("limits") or {}, family.limits
     if current_split == Split.TEST.value and split != current_split:
-        return False, f"the family's best (from {source}) is certified on the sealed test split"
+        return False, f"the family's best ({named}) is certified on the sealed test split"
     if not _at_least_as_tight(holds, held):
         return (
             False,
-            f"the family's best (from {source}) is certified under limits {held} this candidate was not held to",
+            f"the family's best ({named}) is certified under limits ({_limits(held)}) this candidate was not held to",
         )
     if split != current_split:
         return True, "the family's previous best was certified on the search split only"
     if held != holds:
         return (
             True,
-            f"certified under tighter limits ({holds}) than the family's previous best ({held or 'none'})",
+            f"certified under tighter limits ({_limits(holds)}) than the family's previous best ({_limits(held)})",
         )
     sign = family.direction
     old = stats.reproducibility_bound(current["metric"], current["std"], current["n"], sign)
@@ -255,7 +270,7 @@ def _replaces_family_best(
         return True, f"more reproducible on the {split} split than the family's previous best"
     return (
         False,
-        f"the family's best (from {source}) has the better bound on the {split} split ({sign * old:.4g})",
+        f"the family's best ({named}) has the better bound on the {split} split ({sign * old:.4g})",
     )
 
 
