@@ -11,7 +11,7 @@ the env's own batched core (cwh_envs.rollout.fly), through the two-step predicti
 when RUNTIME_CBF_FILTER is on. The primary metric is score = mean terminal distance + 10 x mean
 keep-out violation rate (Eq. rpo_score, lower is better); a run is strict-feasible when success
 >= 0.80, the violation rate is exactly 0 and the minimum keep-out clearance is >= 0. By default
-the starts are the 128 of the search split, the only ones a search may select on;
+the starts are the 512 of the search split (N_EVAL), the only ones a search may select on;
 ``--eval-split test`` scores the record on the 1024 starts of the sealed test split, and the same
 policy on the search split too (each split's metrics under ``splits``). The run ends with one line
 ``FINAL_METRIC: {json}`` that is also appended to the runs log. At four evenly spaced epochs it

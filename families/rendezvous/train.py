@@ -22,7 +22,7 @@ through the dynamics in torch (class ClosedLoop), it descends the mean terminal 
 is then flown in closed loop from held-out
 starts at once through the env's own batched core (cwh_envs.rollout.fly); the primary metric is
 the mean terminal distance to the target in metres (lower is better). By default the starts are
-the 128 of the search split, the only ones a search may select on; ``--eval-split test`` scores
+the 512 of the search split (N_EVAL), the only ones a search may select on; ``--eval-split test`` scores
 the record on the 1024 starts of the sealed test split, and the same policy on the search split
 too (each split's metrics under ``splits``). The run ends with one line ``FINAL_METRIC: {json}``
 that is also appended to the runs log. At four evenly spaced epochs it prints
