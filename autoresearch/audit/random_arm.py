@@ -159,7 +159,7 @@ def run_random_arm(
     limits = {"timeout_per_run": campaign.timeout, "time_budget": campaign.time_budget}
     loop = LoopSettings(PROPOSER, budgets, workers=executor.workers, **limits)
     proposer = RandomProposer(registry, seed, space="random-range", stream=ARM_STREAM)
-    view = PlainView(family.metric)
+    view = PlainView(family.metric, spend=False)  # the random proposer spends nothing
     Orchestrator(family, proposer, arm.root, loop, view=view, executor=executor).run()
     state = arm.state(family)
     off = [(r.run_id, why) for r in state.records if r.ran and (why := family.off_split(r.final_metric))]
