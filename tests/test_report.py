@@ -184,7 +184,12 @@ def test_an_audit_of_a_changed_family_measures_the_noise_again(audited, tmp_path
     assert "measured on another version of it (train.py: sha256" in refused
     assert "`autoresearch noise --family" in refused
     assert main(["audit", "--campaign", str(root), "--noise-seeds", "2", "--seeds", "2", "--count", "2"]) == 0
-    assert "measuring again" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "measuring again" in out
+    # The gate in words where the audit first names it (issue 59: "runaway gate" went unexplained).
+    assert (
+        "split: a candidate passes when its reseeded mean beats the baseline's by 2 seed-noise units" in out
+    )
     noise = Family.load(copy.path).seed_noise
     assert noise["k"] == 2 and noise["measured_at"] >= old["measured_at"]
     assert stale_noise(Family.load(copy.path)) == []

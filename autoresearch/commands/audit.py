@@ -26,6 +26,14 @@ from autoresearch.commands.random_arm import print_random
 from autoresearch.commands.verify import add_gate_argument, add_gate_split_argument, print_verify
 from autoresearch.splits import Split
 
+# The gates in words, where the audit first names them (issue 59: "runaway gate" was never explained).
+GATE_WORDS = {
+    "runaway": "a candidate passes when its reseeded mean beats the baseline's by 2 seed-noise units, it is "
+    "feasible on every reseed, and no reseed sends a start past the family's runaway bound",
+    "paper": "a candidate passes when its reseeded mean beats the baseline's by 2 seed-noise units and it is "
+    "feasible on every reseed (the paper's gate)",
+}
+
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
@@ -80,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
                 )
             noise = measure_noise(family, executor, k=args.noise_seeds, campaign=campaign)
             print(f"[noise] measured: {describe_noise(noise)}")
-        print(f"[verify, gated on the {split} split, {args.gate} gate]")
+        gate = GATE_WORDS.get(args.gate, f"the {args.gate} gate")
+        print(f"[verify] gated on the {split} split: {gate}")
         campaign = open_campaign(args.campaign)
         print_verify(
             verify(campaign, executor, top=args.top, n_seeds=args.seeds, split=split, gate=args.gate)
