@@ -512,6 +512,40 @@ def test_constrained_fine_tuning_can_hold_a_narrower_cone(trains):
     assert (tight >= plain).all() and (tight > plain + 1e-3).any()
 
 
+@pytest.mark.parametrize("form", ["direct", "route"])
+def test_constrained_fine_tuning_under_dispersions_flies_the_envs_dispersed_flight(trains, form):
+    """FINETUNE_DISPERSED (issue 58): ClosedLoop under the draws the env draws for each start (the
+    plant's thrust gain, the navigation error the policy sees) ends where the env's dispersed flight
+    ends, start by start; under no draws it flies otherwise (the draws are used, not ignored)."""
+    from cwh_envs.dispersions import draw_episode, episode_rng
+
+    train = trains["docking-constrained"]
+    problem, cpu = train.PROBLEM, torch.device("cpu")
+    policy = small_policy(train, form)
+    starts, goals = starts_of(train, 16)
+    env = fly(problem, policy.act, starts, goals, dispersions=train.DISPERSIONS, dispersion_seed=7)
+    episodes = [draw_episode(train.DISPERSIONS, episode_rng(7 + i), problem.horizon) for i in range(16)]
+    draws = (
+        torch.as_tensor(np.stack([e.gain for e in episodes])),
+        torch.as_tensor(np.stack([e.nav for e in episodes])),
+    )
+    loop = train.ClosedLoop(cpu, 0.0, dispersions=train.DISPERSIONS)
+    with torch.no_grad():
+        flown = [torch.as_tensor(starts), torch.as_tensor(goals)]
+        dispersed = loop.flight(policy, *flown, draws)[0]
+        nominal = loop.flight(policy, *flown)[0]
+    smoothed = np.sqrt(env.terminal_distance**2 + 1e-12)
+    np.testing.assert_allclose(dispersed.numpy(), smoothed, rtol=1e-9, atol=1e-8)
+    assert np.abs(nominal.numpy() - smoothed).max() > 1e-3
+    # The loss draws afresh from the run's generator: two calls, two draws; the same seed, the same.
+    expert = torch.ones(16, dtype=torch.float64)
+    losses = [loop(policy, *flown, expert, torch.Generator().manual_seed(s)).item() for s in (0, 0, 1)]
+    assert losses[0] == losses[1] != losses[2]
+    assert train.check_config({**defaults(train), "FINETUNE_DISPERSED": True}) is None
+    with pytest.raises(SystemExit, match="FINETUNE_DISPERSED"):
+        train.check_config({**defaults(train), "FINETUNE_DISPERSED": 1})
+
+
 def test_a_closed_loop_gradient_step_lowers_the_flown_distance(trains):
     """The loss's gradient reaches the network through the whole flight and points downhill: a small
     step against it lowers the mean terminal distance from the same starts."""

@@ -49,7 +49,9 @@ filter cannot decide one step at a time. With ROUTE_LR > 0 the "route" form's wa
 cone that loss holds (a margin the filtered flight keeps). ROBUST_FILTER_K > 0 flies the robust
 filter instead (cwh_envs.robust_cbf: every constraint tightened for DISPERSIONS at that many sigmas).
 DAGGER_DISPERSED flies DAgger's rounds under DISPERSIONS, so that the relabelled states are the ones
-a dispersed flight visits.
+a dispersed flight visits. FINETUNE_DISPERSED flies fine-tuning's rollouts under DISPERSIONS too (a
+fresh draw per start and step: thrust gain on the plant, navigation noise on what the policy sees),
+so that the policy is fine-tuned through the dynamics it will fly (issue 58).
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ from torch import nn
 from cwh_envs.constraints import APEX, CAPTURE_RADIUS
 from cwh_envs.controllers import AXIS_TOLERANCE, CONE_ROUTE, WaypointFeedback, min_energy_gains
 from cwh_envs.datasets import Demonstrations, demonstrations, evaluation_set, recovery_demonstrations
+from cwh_envs.dispersions import draw_episode
 from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.observations import docking_observation
 from cwh_envs.problems import DockingProblem
@@ -108,6 +111,7 @@ ROUTE_LR = 0.0  # "route" form: fine-tuning's peak step for the waypoints' posit
 FINETUNE_CONE_TIGHTEN = 0.0  # degrees: fine-tuning holds a cone this much narrower (0: the cone)
 ROBUST_FILTER_K = 0.0  # > 0: the filter is the robust one, sized for DISPERSIONS at this many sigmas
 DAGGER_DISPERSED = False  # True: DAgger's rounds are flown under DISPERSIONS
+FINETUNE_DISPERSED = False  # True: fine-tuning flies each start under a fresh draw of DISPERSIONS
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -167,6 +171,7 @@ CONFIG_NAMES = (
     "FINETUNE_CONE_TIGHTEN",
     "ROBUST_FILTER_K",
     "DAGGER_DISPERSED",
+    "FINETUNE_DISPERSED",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual", "route")
@@ -321,6 +326,8 @@ def check_config(config: dict) -> None:
         problems.append(f"ROBUST_FILTER_K must be a number in [0, {MAX_ROBUST_FILTER_K}]")
     if not isinstance(config["DAGGER_DISPERSED"], bool):
         problems.append("DAGGER_DISPERSED must be True or False")
+    if not isinstance(config["FINETUNE_DISPERSED"], bool):
+        problems.append("FINETUNE_DISPERSED must be True or False")
     frac = config["RECOVERY_AUGMENT_FRAC"]
     if not (isinstance(frac, int | float) and 0 <= frac <= MAX_RECOVERY_FRAC):
         problems.append(f"RECOVERY_AUGMENT_FRAC must lie in [0, {MAX_RECOVERY_FRAC}]")
@@ -692,9 +699,18 @@ class ClosedLoop:
 
     plus ``energy_weight`` x the batch's energy over the expert's from the same starts.
     Differentiable end to end (the clip passes no gradient where it binds, the cone's region is a
-    mask)."""
+    mask). With ``dispersions`` (FINETUNE_DISPERSED) each start flies under its own draw, as
+    cwh_envs.dispersions draws an episode: the plant applies the draw's thrust gain (scale, mass,
+    misalignment) to the clipped action, and the policy sees the state plus the draw's navigation
+    error; the loss scores the true state, as the env does."""
 
-    def __init__(self, device: torch.device, energy_weight: float, cone_tighten: float = 0.0):
+    def __init__(
+        self,
+        device: torch.device,
+        energy_weight: float,
+        cone_tighten: float = 0.0,
+        dispersions: dict | None = None,
+    ):
         a, b = PROBLEM.matrices()
         self.a = torch.tensor(a.T, device=device)  # row states: x' = x A^T + (u_max a) B^T
         self.b = torch.tensor(b.T * PROBLEM.u_max, device=device)
@@ -703,12 +719,24 @@ class ClosedLoop:
         half_angle, self.cone_radius = PROBLEM.approach_cone
         self.cos = math.cos(math.radians(half_angle - cone_tighten))
         self.energy_weight = energy_weight
+        self.dispersions = dispersions
 
-    def flight(self, policy: Policy, starts: torch.Tensor, goals: torch.Tensor):
+    def draws(self, n: int, generator: torch.Generator, device) -> tuple[torch.Tensor, torch.Tensor]:
+        """``n`` episodes' thrust gains (n, 3, 3) and navigation errors (n, H+1, 6), drawn as the env
+        draws them (cwh_envs.dispersions.draw_episode), seeded from ``generator``."""
+        seed = int(torch.randint(2**31 - 1, (1,), generator=generator))
+        rng = np.random.default_rng(seed)
+        episodes = [draw_episode(self.dispersions, rng, PROBLEM.horizon) for _ in range(n)]
+        gains = torch.as_tensor(np.stack([e.gain for e in episodes]), dtype=torch.float64, device=device)
+        nav = torch.as_tensor(np.stack([e.nav for e in episodes]), dtype=torch.float64, device=device)
+        return gains, nav
+
+    def flight(self, policy: Policy, starts: torch.Tensor, goals: torch.Tensor, draws=None):
         """Each start's terminal distance [m], its summed keep-out intrusion, speed excess and distance
         outside the cone [m] (a dict of the three) and its energy [N^2 s], (N,) each, flown as the env
-        flies it without the filter."""
+        flies it without the filter; under ``draws`` (:meth:`draws`: gains, navigation errors)."""
         states, horizon = starts, PROBLEM.horizon
+        gains, nav = draws if draws is not None else (None, None)
         zero = torch.zeros(len(starts), dtype=torch.float64, device=starts.device)
         excursion = {"keep_out": zero, "speed": zero, "cone": zero}
         energy = zero
@@ -718,9 +746,15 @@ class ClosedLoop:
                 (len(states), 1), (horizon - k) / horizon, dtype=torch.float64, device=states.device
             )
             observed = torch.cat([states, goals, tau], dim=1).float()  # the env shows float32 observations
+            if (
+                nav is not None
+            ):  # the navigation error on [r, v], added as the env adds it to the float32 view
+                observed = torch.cat([(observed[:, :6].double() + nav[:, k]).float(), observed[:, 6:]], dim=1)
             raw = observed.double() if policy.residual else None
             action = policy((observed - policy.obs_mean) / policy.obs_std, raw).double().clamp(-1.0, 1.0)
-            states = states @ self.a + action @ self.b
+            # the env's plant: the draw's gain on the command, then the thrust box (cwh_envs.core)
+            applied = action if gains is None else torch.einsum("nij,nj->ni", gains, action).clamp(-1.0, 1.0)
+            states = states @ self.a + applied @ self.b
             radius = norm(states[:, :3])
             offset = states[:, :3] - goals
             distance, speed = norm(offset), norm(states[:, 3:])
@@ -734,11 +768,19 @@ class ClosedLoop:
                     (distance <= self.cone_radius) & (offset.square().sum(dim=1) > APEX**2), outside, 0.0
                 ),
             }
-            energy = energy + (PROBLEM.u_max * action).square().sum(dim=1) * PROBLEM.dt
+            energy = energy + (PROBLEM.u_max * action).square().sum(dim=1) * PROBLEM.dt  # commanded
         return norm(states[:, :3] - goals), excursion, energy
 
-    def __call__(self, policy: Policy, starts, goals, expert_energy: torch.Tensor) -> torch.Tensor:
-        distance, excursion, energy = self.flight(policy, starts, goals)
+    def __call__(
+        self,
+        policy: Policy,
+        starts,
+        goals,
+        expert_energy: torch.Tensor,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        draws = self.draws(len(starts), generator, starts.device) if self.dispersions else None
+        distance, excursion, energy = self.flight(policy, starts, goals, draws)
         beyond = sum(excursion.values())
         return distance.mean() + beyond.mean() + self.energy_weight * energy.sum() / expert_energy.sum()
 
@@ -768,7 +810,8 @@ def finetune(
     starts = torch.as_tensor(pool.starts, dtype=torch.float64, device=device)
     goals = torch.as_tensor(pool.goals, dtype=torch.float64, device=device)
     expert_energy = torch.as_tensor(control_effort(pool.trajectory_thrust(), PROBLEM)[0], device=device)
-    loss_of = ClosedLoop(device, config["FINETUNE_ENERGY"], config["FINETUNE_CONE_TIGHTEN"])
+    dispersions = DISPERSIONS if config["FINETUNE_DISPERSED"] else None
+    loss_of = ClosedLoop(device, config["FINETUNE_ENERGY"], config["FINETUNE_CONE_TIGHTEN"], dispersions)
     total = config["FINETUNE_STEPS"]
     route_rate = config["ROUTE_LR"] if policy.form == "route" else 0.0
     descent = Descent(policy, config["FINETUNE_LR"], config, total, route_rate)
@@ -781,7 +824,7 @@ def finetune(
         if budget.spent():
             break
         batch = torch.randint(len(starts), (FINETUNE_STARTS,), generator=generator).to(device)
-        loss = loss_of(policy, starts[batch], goals[batch], expert_energy[batch])
+        loss = loss_of(policy, starts[batch], goals[batch], expert_energy[batch], generator)
         if not torch.isfinite(loss):
             raise SystemExit(
                 f"train.py: fine-tuning diverged: loss is {loss.item()} at step {len(losses) + 1}"
