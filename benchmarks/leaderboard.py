@@ -756,6 +756,13 @@ def markdown(rows: list[dict]) -> str:
             if r.get("mpc_dispersed"):
                 m = r["mpc_dispersed"]
                 notes.append(f"dispersed: {m['infeasible_resolves']} of {m['solves']} re-solves failed")
+            for level, flown in (r.get("dispersed") or {}).items():
+                if "mpc" in flown:  # how often a disturbed state left MPC's re-solve without an answer
+                    m = flown["mpc"]
+                    notes.append(
+                        f"{level.replace('sigma', 'σ')}: {m['infeasible_resolves']} of {m['solves']} re-solves "
+                        f"failed ({m['fallbacks']} flown on the previous plan or the law)"
+                    )
             if r["strict_feasible"] is not None:
                 notes.append(f"strict-feasible {sum(r['strict_feasible'])}/{len(r['strict_feasible'])}")
             if "split_id" not in r:  # flown before rows recorded it (issue 57): results/splits/README.md
