@@ -771,12 +771,11 @@ def markdown(rows: list[dict]) -> str:
                 notes.append("dispersed with the filter fed the true state (flown before issue 58)")
             if "cone" in (r["violation_rate"] or {}) and "capture_radius" not in r:
                 notes.append("cone scored with its apex on the port (before issue 58's capture envelope)")
-            levels = r.get("dispersed")
+            levels, dispersed = r.get("dispersed"), dispersed_cell(r)
             if levels is None:
                 notes.append("3σ not flown (measured before issue 58)")
-                dispersed, broken = f"{r['dispersed_success_rate']:.1%} / -", "-"
+                broken = "-"
             else:
-                dispersed = " / ".join(f"{levels[level]['success_rate']:.1%}" for level in DISPERSION_LEVELS)
                 broken = "<br>".join(
                     f"{level.replace('sigma', 'σ')}: {broken_cell(levels[level])}"
                     for level in DISPERSION_LEVELS
@@ -812,12 +811,7 @@ def summary(rows: list[dict]) -> str:
             "|---|---:|---:|---:|---:|---:|",
         ]
         for r in block:
-            levels = r.get("dispersed")
-            dispersed = (
-                " / ".join(f"{levels[level]['success_rate']:.1%}" for level in DISPERSION_LEVELS)
-                if levels
-                else f"{r['dispersed_success_rate']:.1%} / -"
-            )
+            dispersed = dispersed_cell(r)
             starts = f" (first {r['n_starts']} starts)" if r["n_starts"] != n else ""
             lines.append(
                 f"| {r['controller']}{starts} | {fmt(r['metric'])} | {r['success_rate']:.1%} | {dispersed} "
@@ -825,6 +819,15 @@ def summary(rows: list[dict]) -> str:
             )
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
+
+
+def dispersed_cell(r: dict) -> str:
+    """``99.9% / 22.3%``: the row's dispersed success at each level; ``-`` at 3σ for a row flown
+    before issue 58 (one level only)."""
+    levels = r.get("dispersed")
+    if levels is None:
+        return f"{r['dispersed_success_rate']:.1%} / -"
+    return " / ".join(f"{levels[level]['success_rate']:.1%}" for level in DISPERSION_LEVELS)
 
 
 def write_readme_summary(readme: Path, text: str) -> None:
