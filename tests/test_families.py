@@ -160,6 +160,10 @@ def test_train_prints_one_final_metric_appends_one_line_and_is_deterministic(nam
             dispersed
         )
         assert dispersed["mean_terminal_distance"] != first["mean_terminal_distance"]
+        # Beside it, the 3-sigma stress set and the share of starts breaking the keep-out at 1 sigma.
+        assert first["dispersed_3sigma"]["dispersions"] != dispersed["dispersions"]
+        assert set(first["dispersed_3sigma"]["breaking_starts"]) == set(dispersed["deepest"]) == {"keep_out"}
+        assert first["dispersed_violating_share"] == dispersed["violating_starts"] / TINY_DATA["N_EVAL"]
     assert first["eval_split"] == "search" and "test_split" not in first["datasets"]
     assert {k: first[k] for k in first["splits"]["search"]} == first["splits"]["search"]  # on top too
     assert {"effort_ratio", "delta_v_ratio", "mean_delta_v"} <= set(first)

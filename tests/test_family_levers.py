@@ -1,23 +1,29 @@
 """The families' algorithm axis (POLICY_FORM, RESIDUAL_SCALE, DAGGER_ITERS, DAGGER_STARTS): the
 defaults are the paper's behaviour cloning, a residual or costate policy with a zero correction is
 the closed-form law (and a costate policy at the expert's multiplier the expert), and DAgger's
-labels are the expert re-solved from the visited states."""
+labels are the expert re-solved from the visited states. The docking families' robust safety
+(issue 58, item 5): ROBUST_FILTER_K flies the robust filter, DAGGER_DISPERSED flies DAgger's rounds
+under the dispersions, and the Monte Carlo auxiliary reports a 3-sigma stress set and the share of
+starts breaking a constraint, which the ``robust`` protocol limits."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from extras import needs_module
 from test_families import family_copy, final_metric, run
 
+from autoresearch.family import Family
 from cwh_envs import experts
 from cwh_envs.constraints import cone_terms, speed_margin
 from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback, pd_action
@@ -25,12 +31,14 @@ from cwh_envs.datasets import demonstrations, evaluation_starts
 from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.observations import rendezvous_observation
 from cwh_envs.prepare import DataNeeds, load_train, required_sets
+from cwh_envs.robust_cbf import ErrorBounds
 from cwh_envs.rollout import control_effort, fly
 
 torch = needs_module("torch", "families")
 
 ROOT = Path(__file__).resolve().parents[1]
 FAMILIES = ("rendezvous", "docking", "docking-constrained")
+DOCKING_FAMILIES = ("docking", "docking-constrained")
 
 
 def run_with(script: Path, tmp_path: Path, env: dict, *args: str) -> subprocess.CompletedProcess:
@@ -765,3 +773,215 @@ def test_a_budget_spent_before_dagger_keeps_the_first_trainings_loss(tmp_path, n
     record = budgeted_record(family, tmp_path, "1.0")
     assert record["budget_exhausted"] is True and record["dagger"]["rounds"] == 0
     assert math.isfinite(record["best_train_loss"])
+
+
+@pytest.mark.parametrize("name", DOCKING_FAMILIES)
+def test_the_robust_filter_lever_flies_the_robust_filter_and_the_default_flies_as_before(trains, name):
+    """ROBUST_FILTER_K: 0 (the default) flies the nominal filter, > 0 the robust filter sized for
+    DISPERSIONS at that many sigmas, which flies differently (a wider berth of the keep-out); with the
+    filter off there is none. Docking's fly still takes RUNTIME_CBF_FILTER's bool: the same flight."""
+    train = trains[name]
+    config = {**defaults(train), "POLICY_FORM": "residual", "HIDDEN_DIM": 8, "N_LAYERS": 1}
+    assert defaults(train)["ROBUST_FILTER_K"] == 0.0 and defaults(train)["DAGGER_DISPERSED"] is False
+    nominal_filter = {"cbf_margin": train.PROBLEM.margin}
+    assert train.safety_filter(config) == nominal_filter
+    assert train.safety_filter({**config, "RUNTIME_CBF_FILTER": False, "ROBUST_FILTER_K": 3.0}) == {}
+    robust = train.safety_filter({**config, "ROBUST_FILTER_K": 2.0})
+    assert robust["cbf_margin"] == train.PROBLEM.margin
+    assert robust["cbf_bounds"] == ErrorBounds.from_dispersions(train.DISPERSIONS, k_sigma=2.0)
+    policy, _ = zero_correction(train, "residual")  # the law heads through the keep-out: the filter acts
+    starts, goals = starts_of(train, 3)
+    nominal = train.fly(policy, starts, goals, nominal_filter)
+    flown = train.fly(policy, starts, goals, robust)
+    assert nominal.cbf_margin_scale is None and flown.cbf_margin_scale is not None  # the robust filter flew
+    assert np.abs(flown.states - nominal.states).max() > 0.1
+    assert flown.min_clearance.min() > nominal.min_clearance.min() >= 0.0
+    if name == "docking":
+        for cbf, safety in ((True, nominal_filter), (False, {})):
+            by_bool = train.fly(policy, starts, goals, cbf, train.DISPERSIONS)
+            by_keywords = train.fly(policy, starts, goals, safety, train.DISPERSIONS)
+            np.testing.assert_array_equal(by_bool.states, by_keywords.states)
+
+
+@pytest.mark.parametrize("name", DOCKING_FAMILIES)
+@pytest.mark.parametrize(
+    ("key", "bad", "message"),
+    [
+        ("ROBUST_FILTER_K", -1.0, "ROBUST_FILTER_K must be a number in [0, 5.0]"),
+        ("ROBUST_FILTER_K", 5.5, "ROBUST_FILTER_K must be a number in [0, 5.0]"),
+        ("ROBUST_FILTER_K", math.nan, "ROBUST_FILTER_K must be a number in [0, 5.0]"),
+        ("ROBUST_FILTER_K", True, "ROBUST_FILTER_K must be a number in [0, 5.0]"),
+        ("ROBUST_FILTER_K", "3", "ROBUST_FILTER_K must be a number in [0, 5.0]"),
+        ("DAGGER_DISPERSED", 1, "DAGGER_DISPERSED must be True or False"),
+    ],
+)
+def test_the_config_check_refuses_a_bad_robust_lever(trains, name, key, bad, message):
+    train = trains[name]
+    assert train.MAX_ROBUST_FILTER_K == 5.0
+    train.check_config({**defaults(train), "ROBUST_FILTER_K": 5.0, "DAGGER_DISPERSED": True})  # the bounds
+    with pytest.raises(SystemExit, match=re.escape(message)):
+        train.check_config({**defaults(train), key: bad})
+
+
+def test_a_bad_docking_robust_lever_is_refused_in_one_line(tmp_path):
+    family = family_copy("docking", tmp_path, ROBUST_FILTER_K=9.0, DAGGER_DISPERSED=1)
+    result = run(family / "train.py", cache=tmp_path / "cache")
+    assert result.returncode != 0 and len(result.stderr.strip().splitlines()) == 1
+    assert "ROBUST_FILTER_K must be a number in [0, 5.0]" in result.stderr
+    assert "DAGGER_DISPERSED must be True or False" in result.stderr
+
+
+@pytest.mark.parametrize("name", DOCKING_FAMILIES)
+@pytest.mark.parametrize("dispersed", [False, True])
+def test_dagger_dispersed_flies_the_rounds_under_the_dispersions(trains, monkeypatch, name, dispersed):
+    """DAGGER_DISPERSED: a DAgger round flies its starts under DISPERSIONS (the draw of each start's
+    seed) through the recipe's filter, and that flight is the one relabelled; off, the nominal flight.
+    The training pool and the expert are stubbed (the expert's relabelling is tested above)."""
+    train = trains[name]
+    starts, goals = starts_of(train, 2)
+    monkeypatch.setattr(
+        train, "demonstrations", lambda *args, **kwargs: SimpleNamespace(starts=starts, goals=goals)
+    )
+    flights, relabelled = [], []
+    flown_for_real = train.fly
+
+    def recording(policy, starts, goals, safety, dispersions=None):
+        flights.append((safety, dispersions, flown_for_real(policy, starts, goals, safety, dispersions)))
+        return flights[-1][-1]
+
+    def relabel(flight, expert_at=None, budget=None):
+        relabelled.append(flight)
+        labels = dict.fromkeys(("hard_labels", "soft_labels", "fallback_labels", "last_step_law_labels"), 0)
+        return np.zeros((4, train.OBS_DIM)), np.zeros((4, 3)), {**labels, "relabelled_states": 4}
+
+    monkeypatch.setattr(train, "fly", recording)
+    monkeypatch.setattr(train, "relabel", relabel)
+    config = {**defaults(train), "EPOCHS": 1, "HIDDEN_DIM": 8, "N_LAYERS": 1, "ROBUST_FILTER_K": 2.0}
+    config |= {"DAGGER_ITERS": 1, "DAGGER_STARTS": 2, "DAGGER_DISPERSED": dispersed}
+    generator = torch.Generator().manual_seed(0)
+    obs = np.random.default_rng(0).normal(size=(8, train.OBS_DIM))
+    policy = train.build_policy(config, obs.mean(axis=0), obs.std(axis=0)).eval()
+    budget = train.Budget(None)
+    budget.start()
+    _, _, pairs, counts = train.dagger(
+        config, policy, obs, np.zeros((8, 3)), torch.device("cpu"), generator, None, budget, math.inf
+    )
+    assert counts["rounds"] == 1 and pairs == 8 + 4
+    ((safety, dispersions, flight),) = flights
+    assert relabelled == [flight]
+    assert safety == train.safety_filter(config) and safety["cbf_bounds"].k_sigma == 2.0
+    assert dispersions == (train.DISPERSIONS if dispersed else None)
+
+
+@pytest.mark.parametrize("name", DOCKING_FAMILIES)
+def test_the_auxiliary_reports_a_stress_set_and_the_share_of_starts_breaking_a_constraint(
+    trains, monkeypatch, name
+):
+    """evaluate's Monte Carlo auxiliary: ``dispersed`` at 1 sigma and ``dispersed_3sigma`` at
+    STRESS_SCALE x DISPERSIONS, each with the starts breaking each constraint (docking: its one, the
+    keep-out) and the deepest violation, and ``dispersed_violating_share``, the 1-sigma share of starts
+    breaking any; the nominal metrics are the flight's own, untouched by them. Flown without the
+    filter by the closed-form law, which heads through the keep-out: starts break things."""
+    train = trains[name]
+    policy, config = zero_correction(train, "residual")
+    starts, goals = starts_of(train, 4)
+    expert_thrust = fly(train.PROBLEM, MinEnergyFeedback(train.PROBLEM), starts, goals).thrust
+    held_out = SimpleNamespace(starts=starts, goals=goals, trajectory_thrust=lambda: expert_thrust)
+    off = train.safety_filter({**config, "RUNTIME_CBF_FILTER": False})
+    metrics = train.evaluate(policy, held_out, off)
+    nominal = train.evaluate(policy, held_out, off, dispersed=False)
+    assert {k: v for k, v in metrics.items() if k in nominal} == nominal
+    assert set(metrics) - set(nominal) == {"dispersed", "dispersed_3sigma", "dispersed_violating_share"}
+    assert train.STRESS_SCALE == 3.0
+    stress = {key: 3.0 * value for key, value in train.DISPERSIONS.items()}
+    constraints = {"keep_out"} if name == "docking" else {"keep_out", "speed", "cone"}
+    for key, spreads in (("dispersed", train.DISPERSIONS), ("dispersed_3sigma", stress)):
+        level = metrics[key]
+        assert level["dispersions"] == spreads
+        assert level == train.dispersed_metrics(train.fly(policy, starts, goals, off, spreads), spreads)
+        assert set(level["breaking_starts"]) == set(level["deepest"]) == constraints
+        breaking = level["breaking_starts"]
+        assert (
+            0
+            < max(breaking.values())
+            <= level["violating_starts"]
+            <= min(len(starts), sum(breaking.values()))
+        )
+        assert all((level["deepest"][c] > 0) == (n > 0) for c, n in breaking.items())
+        if name == "docking":  # one constraint: the starts breaking it are the violating ones
+            assert level["violating_starts"] == breaking["keep_out"]
+    assert (
+        metrics["dispersed_3sigma"]["mean_terminal_distance"]
+        != metrics["dispersed"]["mean_terminal_distance"]
+    )
+    flown = train.fly(policy, starts, goals, off, train.DISPERSIONS)
+    broken = flown.violation_rate + (
+        0 if name == "docking" else flown.speed_violation_rate + flown.cone_violation_rate
+    )
+    assert metrics["dispersed_violating_share"] == (broken > 0).sum() / len(starts) > 0
+    assert metrics["dispersed_violating_share"] == metrics["dispersed"]["violating_starts"] / len(starts)
+    # Here every start breaks something at both levels: the share is the 1-sigma level's, never the
+    # stress set's, seen with levels that differ.
+    counts = {"dispersed": 1, "dispersed_3sigma": 3}
+    monkeypatch.setattr(
+        train,
+        "dispersed_metrics",
+        lambda flight, spreads: {
+            "violating_starts": counts["dispersed" if spreads == train.DISPERSIONS else "dispersed_3sigma"]
+        },
+    )
+    assert train.evaluate(policy, held_out, off)["dispersed_violating_share"] == 1 / len(starts)
+
+
+@pytest.mark.parametrize("name", DOCKING_FAMILIES)
+def test_the_robust_protocol_limits_the_dispersed_share_and_the_space_holds_the_levers(trains, name):
+    train = trains[name]
+    family = Family.load(ROOT / "families" / name)
+    robust = family.under_protocol("robust")
+    assert robust.limits == {"dispersed_violating_share": 0.001}
+    assert robust.is_feasible({"strict_feasible": True, "dispersed_violating_share": 0.0})
+    assert not robust.is_feasible({"strict_feasible": True, "dispersed_violating_share": 1 / train.N_EVAL})
+    assert not robust.is_feasible({"strict_feasible": False, "dispersed_violating_share": 0.0})
+    assert not robust.is_feasible({"strict_feasible": True})  # a run that does not report it fails
+    registry = json.loads((ROOT / "families" / name / "family.json").read_text())["search_space"]
+    assert registry["ROBUST_FILTER_K"] == {
+        "type": "categorical",
+        "choices": [0.0, 1.0, 2.0, 3.0],
+        "axis": "algorithm",
+    }
+    assert max(registry["ROBUST_FILTER_K"]["choices"]) <= train.MAX_ROBUST_FILTER_K
+    assert registry["DAGGER_DISPERSED"] == {"type": "bool", "axis": "algorithm"}
+
+
+def test_a_docking_run_with_the_robust_filter_flies_it_and_records_the_stress_set(tmp_path):
+    """End to end, tiny: a docking run with ROBUST_FILTER_K > 0 trains as the run without it (the
+    same loss) and is scored through the robust filter, which flies the near-law residual policy
+    wider of the keep-out; its record carries the stress set and the robust protocol's share, on
+    top and per split."""
+    records = {}
+    for k in (0.0, 3.0):
+        family = family_copy(
+            "docking",
+            tmp_path / f"k{k:g}",
+            N_DEMOS=4,
+            EPOCHS=2,
+            HIDDEN_DIM=16,
+            N_LAYERS=1,
+            POLICY_FORM='"residual"',
+            RESIDUAL_SCALE=0.01,
+            ROBUST_FILTER_K=k,
+        )
+        out = str(tmp_path / f"out{k:g}")
+        result = run(family / "train.py", "--out", out, cache=tmp_path / "cache", check=True)
+        records[k] = final_metric(result.stdout)
+    nominal, record = records[0.0], records[3.0]
+    assert (
+        record["config"]["ROBUST_FILTER_K"] == 3.0 and record["best_train_loss"] == nominal["best_train_loss"]
+    )
+    assert record["min_clearance"] > nominal["min_clearance"] >= 0.0  # the robust filter's wider berth
+    search = record["splits"]["search"]
+    assert {"dispersed", "dispersed_3sigma", "dispersed_violating_share"} <= set(search) <= set(record)
+    n_eval = load_train(family).N_EVAL
+    assert search["dispersed_violating_share"] == search["dispersed"]["violating_starts"] / n_eval
+    assert search["dispersed_3sigma"]["dispersions"]["nav_position"] == pytest.approx(3 * 0.05)
+    assert set(search["dispersed_3sigma"]["breaking_starts"]) == {"keep_out"}

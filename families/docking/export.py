@@ -49,6 +49,8 @@ def main() -> None:
         "runtime_cbf_filter": cbf,
         "cbf_margin": train.PROBLEM.margin if cbf else None,
         "cbf": "not in the graph: cwh_envs.cbf.safe_actions on the actions, as cwh_envs.rollout.fly(cbf_margin=...)",
+        # > 0: the robust filter (cwh_envs.robust_cbf), sized for train.DISPERSIONS at this many sigmas
+        "robust_filter_k": saved["config"].get("ROBUST_FILTER_K", 0.0) if cbf else None,
         "problem": train.PROBLEM.as_dict(),
         "metric": train.METRIC,
         "config": saved["config"],
