@@ -39,7 +39,7 @@ def main() -> int:
     cbf = saved["config"]["RUNTIME_CBF_FILTER"]
     held_out = evaluation_set(train.TASK, train.N_EVAL, problem=problem).take(args.starts)
     starts, goals = held_out.starts, held_out.goals
-    flown = train.fly(policy, starts, goals, cbf).states
+    flown = train.fly(policy, starts, goals, train.safety_filter(saved["config"])).states
     # The expert's trajectories are cached with the split: re-solving takes minutes per start here.
     a, b = problem.matrices()
     expert = np.array(
@@ -74,7 +74,9 @@ def main() -> int:
             time_s, np.linalg.norm(expert[i, :, :3] - goals[i], axis=1), color=color, lw=1.0, ls="--"
         )
     paths.set(xlabel="x radial [m]", ylabel="y along-track [m]", zlabel="z cross-track [m]")
-    paths.set_title(f"policy (solid, CBF {'on' if cbf else 'off'}) vs expert (dashed)")
+    robust = saved["config"].get("ROBUST_FILTER_K", 0.0) if cbf else 0.0
+    shown = f"robust CBF at {robust:g} sigma" if robust else f"CBF {'on' if cbf else 'off'}"
+    paths.set_title(f"policy (solid, {shown}) vs expert (dashed)")
     clearance.axhline(0.0, color="red", lw=1.0)
     clearance.axhline(problem.margin, color="red", lw=0.8, ls=":")
     clearance.set(xlabel="time [s]", ylabel="keep-out clearance ||r|| - R [m]", ylim=(-1.0, 10.0))
