@@ -63,6 +63,7 @@ from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.prepare import load_train
 from cwh_envs.robust_cbf import ErrorBounds
 from cwh_envs.rollout import fly
+from cwh_envs.tube_mpc import TubeMPC
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("rendezvous", "docking", "docking-constrained")
@@ -225,6 +226,7 @@ class Entry:
     time_budget: float | None = None  # training seconds train.py is granted (the recipe's, when certified so)
     starts: int | None = None  # fewer starts than the split (MPC on constrained docking)
     robust: bool = False  # through the robust filter (cwh_envs.robust_cbf), sized by Task.bounds
+    sized: bool = False  # a controller sized by Task.bounds itself (the tube MPC), no filter
 
 
 class OpenLoop:
@@ -257,6 +259,20 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
             lambda seed: RecedingHorizon(problem),
             "cwh_envs.mpc",
             starts=mpc_starts,
+        ),
+        *(
+            [  # the robust MPC (issue 58): one plan per episode on constraints tightened by its tube
+                Entry(
+                    "tube MPC (robust)",
+                    "classical",
+                    False,
+                    lambda seed: TubeMPC(problem, task.bounds),
+                    f"cwh_envs.tube_mpc (ErrorBounds of the 1-sigma DISPERSIONS, k={ROBUST_K_SIGMA:g})",
+                    sized=True,
+                )
+            ]
+            if docking
+            else []
         ),
         Entry(
             "closed-form feedback" + (" + CBF" if docking else ""),
@@ -374,6 +390,7 @@ def family_best_campaign(task: str) -> str | None:
 ROW_ORDER = (
     "open-loop expert",
     "MPC",
+    "tube MPC (robust)",
     "closed-form feedback",
     "routed feedback",
     "closed-form feedback + robust CBF",
@@ -491,6 +508,8 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
         }
         if isinstance(policy, RecedingHorizon):
             result["mpc"] = mpc_counts(policy)
+        if isinstance(policy, TubeMPC):
+            result["plans"] = dict(policy.counts)
         result["dispersed"] = {}
         for level, scale in DISPERSION_LEVELS.items():
             disturbed = entry.make(seed)
@@ -500,6 +519,8 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
                 disturbed, RecedingHorizon
             ):  # a disturbed state can leave every re-solve infeasible
                 result["dispersed"][level]["mpc"] = mpc_counts(disturbed)
+            if isinstance(disturbed, TubeMPC):  # how each episode's plan was found from the estimate
+                result["dispersed"][level]["plans"] = dict(disturbed.counts)
         result["dispersed_success_rate"] = result["dispersed"]["1sigma"]["success_rate"]
         if entry.kind == "classical":
             n = min(SUBSET, len(flight.terminal_distance))
@@ -561,7 +582,7 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
     the filter on its action (docking rows with a CBF). MPC's solve is timed inside it, without the
     condensed model of each remaining horizon, which is built once and shared."""
     n = min(2 if entry.starts else TIMED_STARTS, len(task.held_out.starts))
-    samples = []
+    samples, plans = [], []
     for i in range(n):
         policy = entry.make(seed)
         calls: list[tuple[float, np.ndarray, np.ndarray]] = []
@@ -599,11 +620,15 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
                     )
                     seconds[k] += time.perf_counter() - started
         samples.append(seconds)
+        if isinstance(policy, TubeMPC):
+            plans.extend(policy.plan_seconds)
     seconds = np.concatenate(samples) * 1e6
     return {
         "p50": float(np.percentile(seconds, 50)),
         "p99": float(np.percentile(seconds, 99)),
         "steps": len(seconds),
+        # the tube MPC's one plan per episode, inside its first step's time above
+        **({"plan_s_median": float(np.median(plans)), "plans": len(plans)} if plans else {}),
     }
 
 
@@ -667,7 +692,7 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
         out["time_budget"] = entry.time_budget
     if "subset" in per_seed[0]:
         out["subset"] = per_seed[0]["subset"]
-    for counts in ("mpc", "mpc_dispersed"):
+    for counts in ("mpc", "mpc_dispersed", "plans"):
         if counts in per_seed[0]:
             out[counts] = per_seed[0][counts]
     if "dispersed" in per_seed[0]:  # flown at every level (issue 58); older rows keep their 1-sigma success
@@ -675,11 +700,23 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
             level: dispersed_over_seeds([r["dispersed"][level] for r in per_seed])
             for level in DISPERSION_LEVELS
         }
-    if entry.robust:
+    if entry.robust or entry.sized:
         out["robust_bounds"] = {"from": "1-sigma DISPERSIONS", "k_sigma": ROBUST_K_SIGMA}
     if task.docking:
         out |= flight(task)
     return out
+
+
+def plans_cell(counts: dict) -> str:
+    """How a tube MPC row's plans were found, in words (cwh_envs.tube_mpc.PLANS), the ways used only."""
+    words = {
+        "cold": "solved cold",
+        "warm": "warm-started from the corridor's plan",
+        "boxed": "from the start box",
+        "soft": "soft",
+        "law": "none (the law flew)",
+    }
+    return ", ".join(f"{n} {words[way]}" for way, n in counts.items() if n)
 
 
 def dispersed_over_seeds(summaries: list[dict]) -> dict:
@@ -694,6 +731,7 @@ def dispersed_over_seeds(summaries: list[dict]) -> dict:
         },
         "deepest": {name: max(s["deepest"][name] for s in summaries) for name in summaries[0]["deepest"]},
         **({"mpc": summaries[0]["mpc"]} if "mpc" in summaries[0] else {}),
+        **({"plans": summaries[0]["plans"]} if "plans" in summaries[0] else {}),
     }
 
 
@@ -763,6 +801,13 @@ def markdown(rows: list[dict]) -> str:
                         f"{level.replace('sigma', 'σ')}: {m['infeasible_resolves']} of {m['solves']} re-solves "
                         f"failed ({m['fallbacks']} flown on the previous plan or the law)"
                     )
+            if r.get("plans"):
+                notes.append(f"plans: {plans_cell(r['plans'])}")
+            for level, flown in (r.get("dispersed") or {}).items():
+                if flown.get("plans"):
+                    notes.append(f"{level.replace('sigma', 'σ')} plans: {plans_cell(flown['plans'])}")
+            if (r["us_per_step"] or {}).get("plan_s_median") is not None:
+                notes.append(f"one plan per episode, {r['us_per_step']['plan_s_median']:.2g} s (median)")
             if r["strict_feasible"] is not None:
                 notes.append(f"strict-feasible {sum(r['strict_feasible'])}/{len(r['strict_feasible'])}")
             if "split_id" not in r:  # flown before rows recorded it (issue 57): results/splits/README.md
@@ -913,7 +958,7 @@ def main(argv=None) -> None:
                 # how a docking row is scored and flown dispersed (issue 58): a row cached before is stale
                 **({"flight": flight(task)} if task.docking else {}),
                 "dispersion_levels": DISPERSION_LEVELS,
-                **({"robust": dataclasses.asdict(task.bounds)} if entry.robust else {}),
+                **({"robust": dataclasses.asdict(task.bounds)} if entry.robust or entry.sized else {}),
             }
             cached = (
                 json.loads(cache.read_text(encoding="utf-8")) if cache.exists() and not args.fresh else {}

@@ -148,3 +148,23 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     row = board.row(task, entry, {"per_seed": [measured]}, None)
     assert row["robust_bounds"]["k_sigma"] == board.ROBUST_K_SIGMA
     assert row["dispersed"]["1sigma"]["success_rate"] == row["dispersed_success_rate"]
+
+
+def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs():
+    """The robust MPC's row (issue 58) on two constrained starts: each level keeps the tube MPC's own
+    plan counts, the compute column its plan time, and the table says both in words."""
+    board = leaderboard()
+    task = board.Task.load("docking-constrained", 2)
+    (entry,) = [e for e in board.entries(task, ROOT / "runs" / "leaderboard", [1]) if e.sized]
+    assert entry.name == "tube MPC (robust)" and not entry.cbf
+    measured = board.measure(task, entry, [1])["per_seed"][0]
+    assert sum(measured["plans"].values()) == 2
+    for level in ("1sigma", "3sigma"):
+        assert sum(measured["dispersed"][level]["plans"].values()) == 2
+    timing = board.time_per_step(task, entry, None)
+    assert timing["plans"] == 2 and timing["plan_s_median"] > timing["p50"] * 1e-6
+    row = board.row(task, entry, {"per_seed": [measured]}, timing)
+    assert row["plans"] == measured["plans"] and row["robust_bounds"]["k_sigma"] == board.ROBUST_K_SIGMA
+    table = board.markdown([row])
+    assert "plans: 2 solved cold" in table or "warm-started from the corridor's plan" in table
+    assert "one plan per episode" in table
