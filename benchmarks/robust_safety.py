@@ -31,6 +31,7 @@ from cwh_envs.mpc import RecedingHorizon
 from cwh_envs.prepare import load_train
 from cwh_envs.robust_cbf import ErrorBounds
 from cwh_envs.rollout import control_effort, fly
+from cwh_envs.tube_mpc import TubeMPC
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("docking-constrained", "docking")  # families whose PROBLEM and DISPERSIONS (1 sigma) are flown
@@ -64,6 +65,11 @@ def rows(problem, bounds: ErrorBounds, mpc_starts: int) -> list[dict]:
             name=f"{label} + robust CBF (1σ bounds, k={bounds.k_sigma:g})",
             make=lambda: law(problem),
             fly=dict(cbf_margin=problem.margin, cbf_bounds=bounds),
+        ),
+        dict(  # the robust MPC of the targets: one plan per episode, cheap enough for every start
+            name=f"tube MPC (1σ bounds, k={bounds.k_sigma:g})",
+            make=lambda: TubeMPC(problem, bounds),
+            fly={},
         ),
     ]
     if mpc_starts:
@@ -129,6 +135,8 @@ def violations(problem, flight) -> dict:
 
 
 def counters(policy) -> dict:
+    if isinstance(policy, TubeMPC):
+        return {"plans": dict(policy.counts)}
     if not isinstance(policy, RecedingHorizon):
         return {}
     return {
@@ -180,6 +188,15 @@ def markdown(task: str, results: list[dict], command: str) -> str:
         for r in mpc:
             parts = [
                 f"{level}: {r[level]['failed_hard']} / {r[level]['soft']} / {r[level]['unanswered']} of {r[level]['solves']}"
+                for level in ("nominal", "1σ", "3σ")
+            ]
+            lines.append(f"- {r['controller']}: " + "; ".join(parts))
+    tubes = [r for r in results if "plans" in r["nominal"]]
+    if tubes:
+        lines += ["", "Tube MPC plans, one per episode (how each was found; cwh_envs.tube_mpc.PLANS):", ""]
+        for r in tubes:
+            parts = [
+                f"{level}: " + ", ".join(f"{n} {way}" for way, n in r[level]["plans"].items() if n)
                 for level in ("nominal", "1σ", "3σ")
             ]
             lines.append(f"- {r['controller']}: " + "; ".join(parts))

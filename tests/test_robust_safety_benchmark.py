@@ -23,6 +23,7 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
         "routed law + CBF",
         "routed law + CBF fed the truth (comparison)",
         "routed law + robust CBF (1σ bounds, k=3)",
+        "tube MPC (1σ bounds, k=3)",
     ]
     for row in payload["rows"]:
         assert row["starts"] == 3 and row["us_per_step"] > 0
@@ -33,3 +34,7 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
     assert payload["rows"][0]["nominal"] == payload["rows"][1]["nominal"]
     table = (tmp_path / "docking-constrained.md").read_text()
     assert "--starts 3" in table and table.count("| routed law") == 3
+    tube = payload["rows"][3]
+    for level in ("nominal", "1σ", "3σ"):  # one plan per start, at every level
+        assert sum(tube[level]["plans"].values()) == 3
+    assert "Tube MPC plans, one per episode" in table
