@@ -21,12 +21,21 @@ give the same trajectories as ``make_vec_env(env_id, n_envs, seed=seed, env_kwar
 (tests/test_sb3_adapter.py). Without a pool the rows draw fresh starts in one batch from the
 env's ``np_random``: the same distribution, other starts.
 
+**Residual RL** (Johannink et al. 2019, Silver et al. 2018): :class:`ResidualVecEnv` flies the agent's
+action ``a`` as ``clip(base(obs) + scale * a, -1, 1)``, a bounded correction on a base controller (the
+closed-form law, say) that sees the raw observation the agent acted on; the filter (``cbf_margin``)
+then acts on that sum, as it would on any action. :func:`residual_policy` is the same composition
+for flying a trained correction (``cwh_envs.rollout.fly``).
+
+    envs = ResidualVecEnv(VecMonitor(NativeVecEnv("CWHDockKOZ-v1", 64, seed=0)), MinEnergyFeedback(problem), 0.2)
+    model = PPO("MlpPolicy", VecNormalize(envs), seed=0).learn(1_000_000)
+
 Importing this module imports stable_baselines3; ``import cwh_envs`` does not.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import gymnasium as gym
@@ -34,7 +43,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 try:
-    from stable_baselines3.common.vec_env import VecEnv
+    from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 except ModuleNotFoundError as err:
     raise ModuleNotFoundError(
         "cwh_envs.sb3 needs stable-baselines3, which is not installed: pip install 'cwh-autoresearch[sb3]'",
@@ -153,6 +162,51 @@ class NativeVecEnv(VecEnv):
     def _every_row(self, indices, what: str) -> None:
         if indices is not None and sorted(self._rows(indices)) != list(range(self.num_envs)):
             raise ValueError(f"{what}: one native env holds every row, so indices must be None (all rows)")
+
+
+def check_residual_scale(scale) -> float:
+    """The correction's bound per axis, a fraction of u_max in (0, 2] (2: it can undo any base action)."""
+    if not (isinstance(scale, int | float) and not isinstance(scale, bool) and 0 < scale <= 2):
+        raise ValueError(f"scale must be a number in (0, 2] (a fraction of u_max), got {scale!r}")
+    return float(scale)
+
+
+def residual_policy(base: Callable, correction: Callable, scale: float) -> Callable:
+    """The policy on observations that flies ``clip(base(obs) + scale * correction(obs), -1, 1)``."""
+    scale = check_residual_scale(scale)
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        return np.clip(base(obs) + scale * np.clip(correction(obs), -1.0, 1.0), -1.0, 1.0)
+
+    return act
+
+
+class ResidualVecEnv(VecEnvWrapper):
+    """The agent learns a correction on ``base`` (a policy on observations returning normalised
+    actions): its action ``a`` (clipped to [-1, 1]) is flown as ``clip(base(obs) + scale * a, -1, 1)``,
+    ``obs`` the raw observation the agent acted on (module docstring). Put it below ``VecNormalize``,
+    so that the base sees observations in metres."""
+
+    def __init__(self, venv: VecEnv, base: Callable, scale: float) -> None:
+        super().__init__(venv)
+        self.base, self.scale = base, check_residual_scale(scale)
+        self._obs: np.ndarray | None = None
+
+    def reset(self) -> np.ndarray:
+        self._obs = self.venv.reset()
+        return self._obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        if self._obs is None:
+            raise RuntimeError("step_async() before reset(): the base needs the observation")
+        correction = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0)
+        flown = np.clip(self.base(self._obs) + self.scale * correction, -1.0, 1.0)
+        self.venv.step_async(flown)
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        self._obs = obs  # after an episode's end, the next episode's first observation (SB3's autoreset)
+        return obs, rewards, dones, infos
 
 
 def _rows(info: dict[str, Any], n: int, keys: frozenset[str] | None = None) -> list[dict[str, Any]]:
