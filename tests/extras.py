@@ -17,6 +17,7 @@ EXTRAS = {
     "llm": ("anthropic", "openai"),
     "ray": ("ray",),
     "sb3": ("stable_baselines3",),
+    "rl": ("stable_baselines3", "rliable"),
     "onnx": ("onnx", "onnxruntime"),
     "dashboard": ("optuna_dashboard",),
 }

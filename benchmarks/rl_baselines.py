@@ -1,0 +1,301 @@
+"""Reinforcement-learning baselines trained as the field trains them (issue 60): several seeds per row,
+long budgets, resumable, with learning curves and an rliable summary.
+
+    python benchmarks/rl_baselines.py --task docking --algo ppo --seeds 0 1 2 3 4 --timesteps 10000000
+    python benchmarks/rl_baselines.py --task docking --algo residual-ppo --seeds 0 1 2 3 4 --timesteps 2000000
+    python benchmarks/rl_baselines.py --task docking --algo ppo --seeds 0 1 --smoke   # plumbing, seconds
+
+Rows (``--algo``), on the families' problems (``--task``: the env takes the family's PROBLEM; on both
+docking tasks the family's filter sits in the training loop, as ACT3's run-time assurance does):
+
+- ``ppo``, ``sac``: SB3 with ``examples/sb3_compare.py``'s settings (rl-baselines3-zoo's continuous-
+  control practice: VecNormalize, gSDE, two layers of 256), only the budget longer.
+- ``residual-ppo``: PPO learning a correction of at most ``--residual-scale`` of u_max per axis on the
+  closed-form law (the routed law on constrained docking): :class:`cwh_envs.sb3.ResidualVecEnv`.
+- ``bc-ppo``: PPO whose policy mean starts as a clone of the expert: before learning, VecNormalize's
+  observation statistics are set from the family's demonstrations and the actor is fitted to their
+  actions by least squares (``--bc-epochs`` passes).
+
+Each seed trains in ``--work/<task>/<algo>/s<seed>`` and saves the model, VecNormalize's statistics and
+its learning curve (metric and success on the family's first 128 search starts, against env steps and
+training wall-clock) at every evaluation, so that a stopped run resumes from its last one. When every
+seed is done the row is scored on the sealed test split (the family's ``N_TEST`` starts, the family's
+metric) and summarised with rliable: the interquartile mean over the seeds with its 95 %
+stratified-bootstrap interval (Agarwal et al. 2021), written to ``--out/<task>/<algo>.json`` with the
+curves (``<algo>_curves.png``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = {
+    "rendezvous": "rendezvous",
+    "docking": "docking+cbf",
+    "docking-constrained": "docking-constrained+cbf",
+}
+ALGOS = ("ppo", "sac", "residual-ppo", "bc-ppo")
+BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples use 2000 to 50000)
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", choices=sorted(TASKS), required=True)
+    parser.add_argument("--algo", choices=ALGOS, required=True)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    parser.add_argument("--timesteps", type=int, default=1_000_000, help="env steps per seed")
+    parser.add_argument("--eval-every", type=int, default=None, help="env steps between curve points")
+    parser.add_argument("--residual-scale", type=float, default=0.2, help="residual-ppo: the bound, of u_max")
+    parser.add_argument("--bc-epochs", type=int, default=20, help="bc-ppo: cloning passes over the demos")
+    parser.add_argument("--work", type=Path, default=ROOT / "runs" / "rl-baselines")
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "rl-baselines")
+    parser.add_argument("--smoke", action="store_true", help="2,048 steps and small rollouts: plumbing only")
+    args = parser.parse_args(argv)
+    if args.smoke:
+        args.timesteps = min(args.timesteps, 2_048)
+    if args.timesteps < 1:
+        parser.error("--timesteps must be >= 1")
+    args.eval_every = args.eval_every or max(1, args.timesteps // 10)
+    return args
+
+
+def _sb3_compare():
+    spec = importlib.util.spec_from_file_location("sb3_compare", ROOT / "examples" / "sb3_compare.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+class Row:
+    """One (task, algo): how its envs, model and base law are built (module docstring)."""
+
+    def __init__(self, args: argparse.Namespace):
+        self.args, self.sb3 = args, _sb3_compare()
+        self.name = TASKS[args.task]
+        self.problem_spec = {"name": self.name, **self.sb3.PROBLEMS[self.name]}
+        self.family = self.sb3.load_family(args.task)
+        self.kind = "sac" if args.algo == "sac" else "ppo"
+
+    def base(self):
+        """The law the residual corrects: the routed law where the problem has a cone, else the
+        closed-form minimum-energy law on the problem without path constraints."""
+        from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback
+
+        problem = self.family.PROBLEM
+        if getattr(problem, "approach_cone", None) is not None:
+            return WaypointFeedback(problem)
+        plain = (
+            problem.replace(speed_limit=None, approach_cone=None)
+            if self.family.TASK == "docking"
+            else problem
+        )
+        return MinEnergyFeedback(plain)
+
+    def envs(self, seed: int, n_envs: int):
+        from cwh_envs.sb3 import ResidualVecEnv
+
+        pool = self.sb3.SMOKE_POOL if self.args.smoke else self.sb3.START_POOL
+        namespace = argparse.Namespace(start_pool=pool, vec_env="native", seed=seed)
+        venv = self.sb3.training_envs(self.problem_spec, self.family, n_envs, namespace)
+        if self.args.algo == "residual-ppo":
+            venv = ResidualVecEnv(venv, self.base(), self.args.residual_scale)
+        return venv
+
+    def params(self) -> dict:
+        params = dict(self.sb3.HYPERPARAMS[self.kind][self.problem_spec["family"]])
+        if self.args.smoke:
+            params |= self.sb3.SMOKE[self.kind]
+        return params
+
+    def policy(self, model, normalizer):
+        """The trained row as a policy on observations (deterministic; the base added back for a residual)."""
+        from cwh_envs.sb3 import residual_policy
+
+        def correction(obs: np.ndarray) -> np.ndarray:
+            action, _ = model.predict(normalizer.normalize_obs(obs), deterministic=True)
+            return np.clip(action.astype(np.float64), -1.0, 1.0)
+
+        if self.args.algo == "residual-ppo":
+            return residual_policy(self.base(), correction, self.args.residual_scale)
+        return correction
+
+
+def clone_into(model, normalizer, family, epochs: int, seed: int) -> dict:
+    """bc-ppo: VecNormalize's observation statistics from the family's demonstrations, then the actor's
+    mean fitted to their actions (MSE, Adam), so that PPO starts from the clone. Returns the fit's loss."""
+    import torch
+
+    from cwh_envs.datasets import demonstrations
+
+    demos = demonstrations(family.TASK, family.POOL_DEMOS, seed=0, problem=family.PROBLEM)
+    obs = demos.observations.astype(np.float32)  # what the env observes
+    actions = np.clip(demos.actions / family.PROBLEM.u_max, -1.0, 1.0)  # the env's action: thrust / u_max
+    normalizer.obs_rms.mean = obs.mean(axis=0)
+    normalizer.obs_rms.var = obs.var(axis=0) + 1e-8
+    normalizer.obs_rms.count = float(len(obs))
+    policy = model.policy
+    x = torch.as_tensor(normalizer.normalize_obs(obs), dtype=torch.float32)
+    y = torch.as_tensor(actions, dtype=torch.float32)
+    parameters = list(policy.mlp_extractor.policy_net.parameters()) + list(policy.action_net.parameters())
+    optimiser = torch.optim.Adam(parameters, lr=1e-3)
+    generator = torch.Generator().manual_seed(seed)
+    loss = torch.tensor(float("nan"))
+    for _ in range(epochs):
+        for batch in torch.randperm(len(x), generator=generator).split(256):
+            latent = policy.mlp_extractor.forward_actor(
+                policy.extract_features(x[batch], policy.pi_features_extractor)
+            )
+            loss = ((policy.action_net(latent) - y[batch]) ** 2).mean()
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+    return {"bc_loss": float(loss), "bc_pairs": len(x)}
+
+
+def train_seed(row: Row, seed: int) -> dict:
+    """Train (or resume) one seed to the budget; its curve points. Every evaluation saves a checkpoint."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    args = row.args
+    work = args.work / args.task / args.algo / f"s{seed}"
+    work.mkdir(parents=True, exist_ok=True)
+    curve_path, model_path, stats_path = work / "curve.jsonl", work / "model.zip", work / "vecnormalize.pkl"
+    params = row.params()
+    n_envs, normalize = params.pop("n_envs"), params.pop("normalize")
+    venv = row.envs(seed, n_envs)
+    algo = row.sb3.ALGOS[row.kind]
+    points = [json.loads(line) for line in curve_path.read_text().splitlines()] if curve_path.exists() else []
+    if model_path.exists() and stats_path.exists():
+        normalizer = VecNormalize.load(str(stats_path), venv)
+        model = algo.load(model_path, env=normalizer, device="cpu")
+        spent = points[-1]["train_seconds"] if points else 0.0
+        extra = {}
+    else:
+        normalizer = VecNormalize(venv, gamma=params["gamma"], **normalize)
+        model = algo("MlpPolicy", normalizer, seed=seed, device="cpu", **params)
+        spent, points = 0.0, []
+        extra = (
+            clone_into(model, normalizer, row.family, args.bc_epochs, seed) if args.algo == "bc-ppo" else {}
+        )
+    evaluate = row.sb3.EvalSet(row.family, row.problem_spec["cbf"])
+    while model.num_timesteps < args.timesteps:
+        chunk = min(args.eval_every, args.timesteps - model.num_timesteps)
+        started = time.perf_counter()
+        model.learn(chunk, reset_num_timesteps=False, progress_bar=False)
+        spent += time.perf_counter() - started
+        normalizer.training = False
+        metrics = evaluate(_Act(row.policy(model, normalizer)))
+        normalizer.training = True
+        point = {
+            "timesteps": int(model.num_timesteps),
+            "train_seconds": spent,
+            "metric": float(metrics[row.family.METRIC]),
+            "success_rate": float(metrics["success_rate"]),
+            **extra,
+        }
+        model.save(model_path)
+        normalizer.save(str(stats_path))
+        with curve_path.open("a", encoding="utf-8") as log:  # appended after the checkpoint it scores
+            log.write(json.dumps(point) + "\n")
+        points.append(point)
+        print(
+            f"[{args.task} {args.algo} s{seed}] {point['timesteps']:,} steps, {spent:.0f} s: "
+            f"{row.family.METRIC} {point['metric']:.4g}, success {point['success_rate']:.1%}",
+            flush=True,
+        )
+    normalizer.training = False
+    return {"seed": seed, "curve": points, "policy": row.policy(model, normalizer)}
+
+
+class _Act:
+    """A policy function behind the families' ``act`` interface."""
+
+    def __init__(self, policy):
+        self.act = policy
+
+
+def sealed_score(row: Row, policy) -> dict:
+    """The family's metrics of ``policy`` on its sealed test split (every start)."""
+    held_out = row.sb3.evaluation_set(
+        row.family.TASK, row.family.N_TEST, problem=row.family.PROBLEM, split="test"
+    )
+    if row.family.TASK == "rendezvous":
+        metrics = row.family.evaluate(_Act(policy), held_out)
+    else:
+        metrics = row.family.evaluate(_Act(policy), held_out, row.problem_spec["cbf"])
+    return {key: metrics[key] for key in (row.family.METRIC, "success_rate") if key in metrics}
+
+
+def iqm_interval(values: list[float]) -> dict:
+    """rliable's interquartile mean over the runs with its 95 % stratified-bootstrap interval (one task)."""
+    from rliable import library as rly
+    from rliable import metrics as rly_metrics
+
+    scores = {"row": np.asarray(values, dtype=np.float64)[:, None]}  # (runs, tasks)
+    point, interval = rly.get_interval_estimates(
+        scores, lambda x: np.array([rly_metrics.aggregate_iqm(x)]), reps=BOOTSTRAP_REPS
+    )
+    return {
+        "iqm": float(point["row"][0]),
+        "ci95": [float(interval["row"][0, 0]), float(interval["row"][1, 0])],
+    }
+
+
+def plot(curves: list[dict], metric: str, path: Path, title: str) -> None:
+    figure = Figure(figsize=(10, 4), layout="constrained")
+    steps, seconds = figure.subplots(1, 2, sharey=True)
+    for run in curves:
+        x = [p["timesteps"] for p in run["curve"]]
+        y = [max(p["metric"], 1e-6) for p in run["curve"]]
+        steps.plot(x, y, marker=".", label=f"seed {run['seed']}")
+        seconds.plot([p["train_seconds"] for p in run["curve"]], y, marker=".")
+    steps.set(xlabel="env steps", ylabel=f"{metric} on 128 search starts (lower is better)", yscale="log")
+    seconds.set(xlabel="training wall-clock [s] (evaluation excluded)", yscale="log")
+    steps.legend(fontsize="small")
+    figure.suptitle(title)
+    figure.savefig(path, dpi=100)
+
+
+def main(argv=None) -> None:
+    args = parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)
+    row = Row(args)
+    runs = [train_seed(row, seed) for seed in args.seeds]
+    sealed = [sealed_score(row, run.pop("policy")) for run in runs]
+    metric = row.family.METRIC
+    summary = {
+        "task": args.task,
+        "algo": args.algo,
+        "env_steps": args.timesteps,
+        "seeds": args.seeds,
+        "split": "test",
+        "metric_name": metric,
+        "metric_per_seed": [s[metric] for s in sealed],
+        "success_per_seed": [s["success_rate"] for s in sealed],
+        "train_seconds_per_seed": [run["curve"][-1]["train_seconds"] for run in runs],
+        **({"residual_scale": args.residual_scale} if args.algo == "residual-ppo" else {}),
+        "smoke": args.smoke,
+        "command": "python benchmarks/rl_baselines.py " + " ".join(sys.argv[1:] if argv is None else argv),
+    }
+    if len(args.seeds) >= 2:
+        summary["iqm"] = iqm_interval(summary["metric_per_seed"])
+    out = args.out / args.task
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{args.algo}.json").write_text(json.dumps({**summary, "curves": runs}, indent=1) + "\n")
+    plot(runs, metric, out / f"{args.algo}_curves.png", f"{args.task}: {args.algo}, {len(runs)} seeds")
+    print(json.dumps(summary, indent=1))
+
+
+if __name__ == "__main__":
+    main()

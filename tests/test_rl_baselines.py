@@ -1,0 +1,78 @@
+"""benchmarks/rl_baselines.py (issue 60): seeds train to the budget, a stopped run resumes from its
+last checkpoint, the row is scored on the sealed split and summarised by rliable's IQM."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import rl_baselines
+
+pytestmark = pytest.mark.needs("rl", "families")
+
+
+def run(tmp_path, *args):
+    rl_baselines.main(
+        ["--task", "docking", "--work", str(tmp_path / "work"), "--out", str(tmp_path / "out"), *args]
+    )
+    return json.loads((tmp_path / "out" / "docking" / f"{args[args.index('--algo') + 1]}.json").read_text())
+
+
+def test_two_seeds_give_per_seed_sealed_scores_an_iqm_inside_them_and_curves(tmp_path):
+    result = run(
+        tmp_path, "--algo", "ppo", "--seeds", "0", "1", "--timesteps", "256", "--eval-every", "128", "--smoke"
+    )
+    assert result["seeds"] == [0, 1] and result["split"] == "test" and result["env_steps"] == 256
+    low, high = min(result["metric_per_seed"]), max(result["metric_per_seed"])
+    assert low <= result["iqm"]["iqm"] <= high
+    assert result["iqm"]["ci95"][0] <= result["iqm"]["iqm"] <= result["iqm"]["ci95"][1]
+    for curve in result["curves"]:
+        steps = [p["timesteps"] for p in curve["curve"]]
+        assert steps == sorted(steps) and steps[-1] >= 256
+    assert (tmp_path / "out" / "docking" / "ppo_curves.png").stat().st_size > 0
+
+
+def test_a_longer_budget_resumes_each_seed_from_its_checkpoint(tmp_path):
+    first = run(
+        tmp_path, "--algo", "ppo", "--seeds", "0", "--timesteps", "128", "--eval-every", "128", "--smoke"
+    )
+    again = run(
+        tmp_path, "--algo", "ppo", "--seeds", "0", "--timesteps", "384", "--eval-every", "128", "--smoke"
+    )
+    before, after = first["curves"][0]["curve"], again["curves"][0]["curve"]
+    assert after[: len(before)] == before  # the points already scored are kept, not retrained
+    assert after[-1]["timesteps"] >= 384 and len(after) > len(before)
+    log = (tmp_path / "work" / "docking" / "ppo" / "s0" / "curve.jsonl").read_text().splitlines()
+    assert [json.loads(line) for line in log] == after
+
+
+def test_residual_ppo_flies_the_law_plus_its_bounded_correction(tmp_path):
+    args = rl_baselines.parse_args(
+        ["--task", "docking", "--algo", "residual-ppo", "--smoke", "--residual-scale", "0.1"]
+    )
+    row = rl_baselines.Row(args)
+    law = row.base()
+
+    class Fixed:  # a trained model's predict: the correction it would fly
+        def predict(self, obs, deterministic):
+            return np.full((len(obs), 3), 5.0, dtype=np.float32), None
+
+    class Identity:
+        def normalize_obs(self, obs):
+            return obs
+
+    policy = row.policy(Fixed(), Identity())
+    obs = np.tile(np.r_[30.0, -20.0, 10.0, 0.0, 0.0, 0.0, 8.0, 0.0, 0.0, 1.0], (2, 1))
+    np.testing.assert_allclose(policy(obs), np.clip(law(obs) + 0.1, -1, 1))
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(SystemExit):
+        rl_baselines.parse_args(["--task", "docking", "--algo", "a2c"])
+    with pytest.raises(SystemExit):
+        rl_baselines.parse_args(["--task", "docking", "--algo", "ppo", "--timesteps", "0"])
