@@ -82,14 +82,18 @@ def train_pool(family: Family, configs: list[dict], root: Path, workers: int, ti
 
 
 def scorer(train):
-    """The family's evaluate(policy, held_out) for a configuration (docking's takes its CBF setting)."""
+    """The family's evaluate(policy, held_out) for a configuration (the docking families' take its filter)."""
     params = inspect.signature(train.evaluate).parameters
 
     def score(policy, config: dict, held_out) -> dict:
-        if "cbf" not in params:
+        if not hasattr(train, "safety_filter") and "cbf" not in params:  # rendezvous: no filter
             return train.evaluate(policy, held_out)
         extra = {"dispersed": False} if "dispersed" in params else {}  # an auxiliary: not the metric
-        return train.evaluate(policy, held_out, config["RUNTIME_CBF_FILTER"], **extra)
+        # the recipe's filter as the family flies it (the robust one included, where it has the lever)
+        safety = (
+            train.safety_filter(config) if hasattr(train, "safety_filter") else config["RUNTIME_CBF_FILTER"]
+        )
+        return train.evaluate(policy, held_out, safety, **extra)
 
     return score
 

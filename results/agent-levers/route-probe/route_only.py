@@ -50,7 +50,7 @@ def main() -> None:
             )
             loss = f"{counts['first_loss']:.3g} / {counts['last_loss']:.3g}"
             print(f"<!-- {name}: along {counts['route']['along']}, across {counts['route']['across']} -->")
-        m = train.evaluate(policy, search, cbf=True, dispersed=False)
+        m = train.evaluate(policy, search, {"cbf_margin": train.PROBLEM.margin}, dispersed=False)
         print(
             f"| {name} | {loss} | {m['score']:.3g} | {m['success_rate']:.1%} | {m['strict_feasible']} "
             f"| {m['effort_ratio']:.3f} |",
