@@ -172,6 +172,36 @@ def test_docking_export_records_a_recipe_without_the_filter_and_fly_onnx_follows
     assert result.returncode != 0 and "holds a 'docking' policy, not 'rendezvous'" in result.stderr
 
 
+@pytest.mark.slow
+def test_a_robust_filter_recipe_is_flown_through_the_robust_filter_by_fly_onnx(exported, tmp_path):
+    """A recipe with ROBUST_FILTER_K > 0 records it, and fly_onnx.py flies the robust filter sized for
+    the family's DISPERSIONS at that k: the family's own score of that recipe, not the nominal one's."""
+    family, _ = exported["docking"]
+    saved = torch.load(family / "out" / "policy.pt", weights_only=True)
+    saved["config"] = {**saved["config"], "RUNTIME_CBF_FILTER": True, "ROBUST_FILTER_K": 3.0}
+    torch.save(saved, tmp_path / "policy.pt")
+    run(
+        family / "export.py",
+        "--policy",
+        tmp_path / "policy.pt",
+        "--onnx",
+        tmp_path / "robust.onnx",
+        cwd=family,
+    )
+    assert OnnxPolicy(tmp_path / "robust.onnx").metadata["robust_filter_k"] == 3.0
+    train = import_train(family / "train.py")
+    policy, _ = train.load_policy(tmp_path / "policy.pt")
+    held_out = evaluation_set("docking", train.N_EVAL)
+    robust = train.evaluate(policy, held_out, train.safety_filter(saved["config"]), dispersed=False)
+    nominal = train.evaluate(policy, held_out, True, dispersed=False)
+    assert robust["score"] != nominal["score"]
+    flown = json.loads(
+        run(ROOT / "examples" / "fly_onnx.py", "--family", "docking", tmp_path / "robust.onnx", cwd=tmp_path)
+    )
+    assert flown["robust_filter_k"] == 3.0
+    assert flown["score"] == pytest.approx(robust["score"], rel=1e-5)
+
+
 def test_export_policy_standardises_clips_and_keeps_metadata(tmp_path):
     torch.manual_seed(0)
     net = torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.Tanh(), torch.nn.Linear(8, 3))
