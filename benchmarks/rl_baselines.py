@@ -17,7 +17,7 @@ docking tasks the family's filter sits in the training loop, as ACT3's run-time 
   actions by least squares (``--bc-epochs`` passes).
 
 Each seed trains in ``--work/<task>/<algo>/s<seed>`` and saves the model, VecNormalize's statistics and
-its learning curve (metric and success on the family's first 128 search starts, against env steps and
+its learning curve (metric and success on the family's search split, its N_EVAL starts, against env steps and
 training wall-clock) at every evaluation, so that a stopped run resumes from its last one. When every
 seed is done the row is scored on the sealed test split (the family's ``N_TEST`` starts, the family's
 metric) and summarised with rliable: the interquartile mean over the seeds with its 95 %
@@ -258,7 +258,7 @@ def plot(curves: list[dict], metric: str, path: Path, title: str) -> None:
         y = [max(p["metric"], 1e-6) for p in run["curve"]]
         steps.plot(x, y, marker=".", label=f"seed {run['seed']}")
         seconds.plot([p["train_seconds"] for p in run["curve"]], y, marker=".")
-    steps.set(xlabel="env steps", ylabel=f"{metric} on 128 search starts (lower is better)", yscale="log")
+    steps.set(xlabel="env steps", ylabel=f"{metric} on the search split (lower is better)", yscale="log")
     seconds.set(xlabel="training wall-clock [s] (evaluation excluded)", yscale="log")
     steps.legend(fontsize="small")
     figure.suptitle(title)

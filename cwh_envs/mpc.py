@@ -103,9 +103,8 @@ class RecedingHorizon:
             raise ValueError(f"bounds must be an ErrorBounds, on a DockingProblem; got {bounds!r}")
         self.problem, self.on_failure = problem, on_failure
         self.planned = problem if bounds is None else tightened(problem, bounds)
-        if isinstance(problem, DockingProblem) and problem.approach_cone is not None:
-            half_angle, radius = self.planned.approach_cone
-            self.planned = self.planned.replace(approach_cone=(half_angle, radius + RADIUS_MARGIN))
+        if isinstance(problem, DockingProblem):
+            self.planned = corridor(self.planned)
         self.law = MinEnergyFeedback(problem)
         self.solve_seconds: list[float] = []
         self._resize(0)
@@ -203,6 +202,15 @@ class RecedingHorizon:
             return None
         self.soft[row] += 1
         return controls
+
+
+def corridor(problem: DockingProblem) -> DockingProblem:
+    """The problem as every plan is solved: the approach cone's radius grown by RADIUS_MARGIN (module
+    docstring); unchanged without a cone."""
+    if problem.approach_cone is None:
+        return problem
+    half_angle, radius = problem.approach_cone
+    return problem.replace(approach_cone=(half_angle, radius + RADIUS_MARGIN))
 
 
 def tightened(problem: DockingProblem, bounds: ErrorBounds) -> DockingProblem:

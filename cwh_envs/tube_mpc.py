@@ -63,7 +63,7 @@ import scipy.linalg
 
 from cwh_envs import experts
 from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback
-from cwh_envs.mpc import RADIUS_MARGIN
+from cwh_envs.mpc import RADIUS_MARGIN, corridor
 from cwh_envs.observations import DOCKING_OBS_DIM
 from cwh_envs.problems import DockingProblem
 from cwh_envs.robust_cbf import ErrorBounds
@@ -154,11 +154,7 @@ class TubeMPC:
         self.gain = ancillary_gain(problem, time_constant)
         self.tube = Tube.of(problem, bounds, self.gain, float(reference_thrust))
         self.planned = tube_tightened(problem, self.tube)
-        corridor = problem
-        if problem.approach_cone is not None:
-            half_angle, radius = problem.approach_cone
-            corridor = problem.replace(approach_cone=(half_angle, radius + RADIUS_MARGIN))
-        self.corridor = corridor  # the untightened plan, a warm start for the tightened one
+        self.corridor = corridor(problem)  # the untightened plan, a warm start for the tightened one
         self.law = (WaypointFeedback if problem.approach_cone is not None else MinEnergyFeedback)(problem)
         self.counts = dict.fromkeys(PLANS, 0)
         self.plan_seconds: list[float] = []
