@@ -228,17 +228,21 @@ def load_family(name: str):
 
 
 class EvalSet:
-    """The family's 128 held-out starts and its exact closed-loop evaluation, for any ``policy.act``."""
+    """A family's evaluation split and its exact closed-loop evaluation, for any ``policy.act``: the
+    search split's N_EVAL starts by default, the sealed test split's N_TEST with ``split="test"``.
+    ``dispersed=False`` skips the docking families' Monte Carlo auxiliary (a learning curve needs only
+    the nominal metric)."""
 
-    def __init__(self, family, cbf: bool):
-        self.family, self.cbf = family, cbf
-        self.held_out = evaluation_set(family.TASK, family.N_EVAL, problem=family.PROBLEM)
+    def __init__(self, family, cbf: bool, split: str = "search", dispersed: bool = True):
+        self.family, self.cbf, self.dispersed = family, cbf, dispersed
+        count = {"search": family.N_EVAL, "test": family.N_TEST}[split]
+        self.held_out = evaluation_set(family.TASK, count, problem=family.PROBLEM, split=split)
         self.starts, self.goals = self.held_out.starts, self.held_out.goals
 
     def __call__(self, policy) -> dict:
         if self.family.TASK == "rendezvous":
             return self.family.evaluate(policy, self.held_out)
-        return self.family.evaluate(policy, self.held_out, self.cbf)
+        return self.family.evaluate(policy, self.held_out, self.cbf, dispersed=self.dispersed)
 
 
 class SB3Policy:

@@ -76,3 +76,27 @@ def test_bad_arguments_are_refused():
         rl_baselines.parse_args(["--task", "docking", "--algo", "a2c"])
     with pytest.raises(SystemExit):
         rl_baselines.parse_args(["--task", "docking", "--algo", "ppo", "--timesteps", "0"])
+
+
+def test_residual_ppo_starts_as_the_law_and_every_curve_starts_before_learning(tmp_path):
+    result = run(
+        tmp_path,
+        "--algo",
+        "residual-ppo",
+        "--seeds",
+        "0",
+        "--timesteps",
+        "128",
+        "--eval-every",
+        "128",
+        "--smoke",
+    )
+    first = result["curves"][0]["curve"][0]
+    assert first["timesteps"] == 0 and first["train_seconds"] == 0.0
+    row = rl_baselines.Row(
+        rl_baselines.parse_args(["--task", "docking", "--algo", "residual-ppo", "--smoke"])
+    )
+    evaluate = row.sb3.EvalSet(row.family, row.problem_spec["cbf"], dispersed=False)
+    law = evaluate(rl_baselines._Act(row.base()))
+    assert first["metric"] == law[row.family.METRIC]  # a zero correction: the law to the bit
+    assert first["success_rate"] == law["success_rate"]
