@@ -718,6 +718,7 @@ def plans_cell(counts: dict) -> str:
         "warm": "warm-started from the corridor's plan",
         "boxed": "from the start box",
         "soft": "soft",
+        "corridor": "untightened (the corridor's plan)",
         "law": "none (the law flew)",
     }
     return ", ".join(f"{n} {words[way]}" for way, n in counts.items() if n)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -46,6 +47,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--starts", type=int, default=None, help="the first N sealed starts (default: all)")
     parser.add_argument("--mpc-starts", type=int, default=0, help="MPC rows on the first N starts (slow)")
     parser.add_argument("--k-sigma", type=float, default=3.0)
+    parser.add_argument(
+        "--rows",
+        nargs="+",
+        default=None,
+        help="fly only the rows named so (prefixes); keep the rest from the JSON",
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "robust-safety")
     return parser.parse_args(argv)
 
@@ -69,6 +76,11 @@ def rows(problem, bounds: ErrorBounds, mpc_starts: int) -> list[dict]:
         dict(  # the robust MPC of the targets: one plan per episode, cheap enough for every start
             name=f"tube MPC (1σ bounds, k={bounds.k_sigma:g})",
             make=lambda: TubeMPC(problem, bounds),
+            fly={},
+        ),
+        dict(  # the same on the navigation filter's estimate, compensating the estimated thrust error
+            name=f"tube MPC + navigation filter (1σ bounds, k={bounds.k_sigma:g})",
+            make=lambda: TubeMPC(problem, bounds, navigation=True),
             fly={},
         ),
     ]
@@ -158,11 +170,13 @@ def time_per_step(problem, row: dict, starts, goals) -> float:
     return float(np.median(times))
 
 
-def markdown(task: str, results: list[dict], command: str) -> str:
+def markdown(task: str, results: list[dict]) -> str:
+    commands = sorted({r["command"] for r in results})
     lines = [
         f"# Safety under dispersions: {task}, sealed split",
         "",
-        f"`{command}` (this machine, 2 cores). The filter and MPC act on the navigation estimate; the env",
+        "Measured on this machine (2 cores) by " + " and ".join(f"`{c}`" for c in commands) + " (each",
+        "row's command in the JSON). The filter and MPC act on the navigation estimate; the env",
         "scores the true state. Dispersions: the families' `DISPERSIONS` (1σ) and the same ×3 (3σ).",
         "Fuel: energy over the shipped expert energy of the same start (nominal flight).",
         "",
@@ -220,17 +234,29 @@ def main(argv=None) -> None:
     n = len(split) if args.starts is None else args.starts
     starts, goals = split.first(n)
     bounds = ErrorBounds.from_dispersions(one_sigma, k_sigma=args.k_sigma)
+    given = sys.argv[1:] if argv is None else argv
+    command = ("python benchmarks/robust_safety.py " + " ".join(given)).strip()
+    path = args.out / f"{args.task}.json"
+    kept = {}
+    if args.rows and path.exists():  # the rows not flown now, as measured by their own commands
+        before = json.loads(path.read_text(encoding="utf-8"))
+        kept = {r["controller"]: {"command": before["command"], **r} for r in before["rows"]}
     results = []
     for row in rows(problem, bounds, args.mpc_starts):
+        if args.rows and not any(row["name"].startswith(prefix) for prefix in args.rows):
+            if row["name"] in kept:
+                results.append(kept[row["name"]])
+            continue
         began = time.perf_counter()
-        results.append(measure(problem, one_sigma, row, starts, goals, split.energy[:n]))
+        results.append(
+            {**measure(problem, one_sigma, row, starts, goals, split.energy[:n]), "command": command}
+        )
         print(f"{row['name']}: {time.perf_counter() - began:.0f} s", flush=True)
-    command = "python benchmarks/robust_safety.py " + " ".join(argv or [])
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{args.task}.md").write_text(markdown(args.task, results, command.strip()), encoding="utf-8")
-    payload = {"task": args.task, "split": split.label, "command": command.strip(), "rows": results}
-    (args.out / f"{args.task}.json").write_text(json.dumps(payload, indent=1) + "\n", encoding="utf-8")
-    print(markdown(args.task, results, command.strip()))
+    (args.out / f"{args.task}.md").write_text(markdown(args.task, results), encoding="utf-8")
+    payload = {"task": args.task, "split": split.label, "command": command, "rows": results}
+    path.write_text(json.dumps(payload, indent=1) + "\n", encoding="utf-8")
+    print(markdown(args.task, results))
 
 
 if __name__ == "__main__":

@@ -45,8 +45,9 @@ The plan then falls back, each step counted in :attr:`counts`: the tightened pro
 from the untightened corridor's plan (``warm``); the same from the estimate with its velocity put
 back into the problem's declared start box (``boxed``: the tube's initial deviation then includes
 that velocity, within the navigation bound); the soft expert of the tightened problem, exact
-penalties (``soft``); the closed-form routed law for the episode (``law``), which no measured start
-needed.
+penalties (``soft``); the untightened corridor's plan itself, found on the way (``corridor``: the
+tube's margins given up for that episode, the corridor's own kept); the closed-form routed law for the
+episode (``law``).
 
 It is a policy on observations like :class:`cwh_envs.mpc.RecedingHorizon`: ``mpc(obs)`` for
 (N, obs_dim) or (obs_dim,); a row whose observed time-to-go is the horizon starts a new episode.
@@ -64,13 +65,21 @@ import scipy.linalg
 from cwh_envs import experts
 from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback
 from cwh_envs.mpc import RADIUS_MARGIN, corridor
+from cwh_envs.navigation import NavigationFilter
 from cwh_envs.observations import DOCKING_OBS_DIM
 from cwh_envs.problems import DockingProblem
 from cwh_envs.robust_cbf import ErrorBounds
 
 TIME_CONSTANT = 60.0  # s: the ancillary loop's; measured on the search split (module docstring)
 REFERENCE_THRUST = 0.05  # N: the thrust level at which the thrust error is sized
-PLANS = ("cold", "warm", "boxed", "soft", "law")  # how each episode's plan was found, in the order tried
+PLANS = (
+    "cold",
+    "warm",
+    "boxed",
+    "soft",
+    "corridor",
+    "law",
+)  # how each episode's plan was found, in the order tried
 _TUBE_STEPS = 2000  # terms of the tube's sums: the loop's response is below 1e-100 of its start by then
 
 
@@ -141,6 +150,7 @@ class TubeMPC:
         bounds: ErrorBounds,
         time_constant: float = TIME_CONSTANT,
         reference_thrust: float = REFERENCE_THRUST,
+        navigation: bool = False,
     ) -> None:
         if not isinstance(problem, DockingProblem):
             raise ValueError(f"problem must be a DockingProblem, got {type(problem).__name__}")
@@ -152,6 +162,7 @@ class TubeMPC:
             )
         self.problem, self.bounds = problem, bounds
         self.gain = ancillary_gain(problem, time_constant)
+        self.navigation = NavigationFilter(problem, bounds) if navigation else None
         self.tube = Tube.of(problem, bounds, self.gain, float(reference_thrust))
         self.planned = tube_tightened(problem, self.tube)
         self.corridor = corridor(problem)  # the untightened plan, a warm start for the tightened one
@@ -169,11 +180,20 @@ class TubeMPC:
         if len(batch) != len(self.plans):
             self.plans = [None] * len(batch)
             self._fresh = np.ones(len(batch), dtype=bool)
+            self._commanded = np.zeros((len(batch), 3))
         horizon = self.problem.horizon
         steps_to_go = np.rint(batch[:, -1] * horizon).astype(np.int64)
+        new = (steps_to_go == horizon) | self._fresh  # a new episode (or a row met mid-way)
+        if self.navigation is not None:  # the filter's estimate replaces the measured [r, v]
+            if new.all() or len(self.navigation.mean) != len(batch):
+                self.navigation.start(new, batch)
+            else:
+                estimate = self.navigation.step(self._commanded, batch)
+                self.navigation.start(new, batch)
+                batch[:, :6] = np.where(new[:, None], batch[:, :6], estimate)
         thrust = np.zeros((len(batch), 3))
         for row in range(len(batch)):
-            if steps_to_go[row] == horizon or self._fresh[row]:  # a new episode (or a row met mid-way)
+            if new[row]:
                 self.plans[row], self._fresh[row] = self._plan(batch[row]), False
             if self.plans[row] is None:  # the law flies this episode
                 thrust[row] = self.law.thrust(batch[row : row + 1])[0]
@@ -181,7 +201,10 @@ class TubeMPC:
             states, controls = self.plans[row]
             k = min(horizon - steps_to_go[row], len(controls) - 1)
             thrust[row] = controls[k] + self.gain @ (batch[row, :6] - states[k])
+        if self.navigation is not None:  # command what makes the estimated thruster deliver ``thrust``
+            thrust = np.linalg.solve(self.navigation.thrust_gain(), thrust[..., None])[..., 0]
         actions = np.clip(thrust / self.problem.u_max, -1.0, 1.0)
+        self._commanded = actions * self.problem.u_max  # what the filter predicts with next step
         return actions[0] if single else actions
 
     def _plan(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -201,14 +224,17 @@ class TubeMPC:
             pass
         box = np.asarray(self.problem.velocity_box, dtype=np.float64)
         boxed = np.concatenate([x0[:3], np.clip(x0[3:], -box, box)])
-        warm = None
+        untightened = None  # the first corridor plan found: a warm start, and the last plan before the law
         for way, start in (("warm", x0), ("boxed", boxed)):
             try:
-                warm = experts.solve_docking(start, goal, self.corridor)[1]
-                return way, experts.solve_docking(start, goal, self.planned, warm_start=warm)
+                plan = experts.solve_docking(start, goal, self.corridor)
+                untightened = untightened or plan
+                return way, experts.solve_docking(start, goal, self.planned, warm_start=plan[1])
             except experts.Infeasible:
                 continue
+        warm = None if untightened is None else untightened[1]
         try:
             return "soft", experts.soft_docking(x0, goal, self.planned, warm_start=warm)[:2]
         except experts.Infeasible:
-            return "law", None
+            pass
+        return ("law", None) if untightened is None else ("corridor", untightened)

@@ -24,6 +24,7 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
         "routed law + CBF fed the truth (comparison)",
         "routed law + robust CBF (1σ bounds, k=3)",
         "tube MPC (1σ bounds, k=3)",
+        "tube MPC + navigation filter (1σ bounds, k=3)",
     ]
     for row in payload["rows"]:
         assert row["starts"] == 3 and row["us_per_step"] > 0
@@ -34,7 +35,17 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
     assert payload["rows"][0]["nominal"] == payload["rows"][1]["nominal"]
     table = (tmp_path / "docking-constrained.md").read_text()
     assert "--starts 3" in table and table.count("| routed law") == 3
-    tube = payload["rows"][3]
-    for level in ("nominal", "1σ", "3σ"):  # one plan per start, at every level
-        assert sum(tube[level]["plans"].values()) == 3
+    for tube in payload["rows"][3:]:
+        for level in ("nominal", "1σ", "3σ"):  # one plan per start, at every level
+            assert sum(tube[level]["plans"].values()) == 3
     assert "Tube MPC plans, one per episode" in table
+    # Without dispersions the filter sees no innovation: the filtered tube MPC flies as the plain one.
+    assert payload["rows"][4]["nominal"]["success"] == payload["rows"][3]["nominal"]["success"]
+
+    # --rows flies the rows named and keeps the others as they were, each with its own command.
+    robust_safety.main(["--starts", "3", "--out", str(tmp_path), "--rows", "routed law + CBF fed"])
+    again = json.loads((tmp_path / "docking-constrained.json").read_text())
+    assert [row["controller"] for row in again["rows"]] == names
+    assert again["rows"][0] == payload["rows"][0]
+    assert again["rows"][1]["command"].endswith("--rows routed law + CBF fed")
+    assert again["rows"][1]["1σ"] == payload["rows"][1]["1σ"]  # the same flight, flown again

@@ -106,7 +106,7 @@ def test_the_nominal_flight_is_the_tightened_plan_and_docks():
     starts, goals = search_starts(1)
     mpc = TubeMPC(PROBLEM, BOUNDS)
     flight = fly(PROBLEM, mpc, starts, goals)
-    assert mpc.counts == {"cold": 1, "warm": 0, "boxed": 0, "soft": 0, "law": 0}
+    assert mpc.counts == {"cold": 1, "warm": 0, "boxed": 0, "soft": 0, "corridor": 0, "law": 0}
     (states, _controls) = mpc.plans[0]
     # The feedback sees only the observation's float32 rounding: the flight is the plan.
     np.testing.assert_allclose(flight.states[0], states, atol=1e-4)
@@ -117,6 +117,16 @@ def test_the_nominal_flight_is_the_tightened_plan_and_docks():
     speed = np.linalg.norm(states[1:, 3:], axis=1)
     distance = np.linalg.norm(states[1:, :3] - goals[0], axis=1)
     assert np.all(speed <= v0 + v1 * distance + 1e-9)
+
+
+def test_with_the_navigation_filter_the_nominal_flight_is_unchanged():
+    """No noise, no thrust error: the filter sees no innovation (beyond float32 rounding), so the
+    filtered tube MPC flies what the unfiltered one does."""
+    starts, goals = search_starts(1)
+    plain = fly(PROBLEM, TubeMPC(PROBLEM, BOUNDS), starts, goals)
+    filtered = fly(PROBLEM, TubeMPC(PROBLEM, BOUNDS, navigation=True), starts, goals)
+    np.testing.assert_allclose(filtered.states, plain.states, atol=1e-6)
+    assert filtered.is_success[0]
 
 
 def test_a_start_the_tightened_expert_cannot_solve_cold_is_planned_from_the_corridors_plan():

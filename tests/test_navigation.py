@@ -1,0 +1,62 @@
+"""cwh_envs.navigation (issue 58): the Kalman filter of the state and the episode's thrust error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cwh_envs.dispersions import check_spreads, draw_episode, episode_rng
+from cwh_envs.navigation import NavigationFilter
+from cwh_envs.problems import DockingProblem
+from cwh_envs.robust_cbf import ErrorBounds
+
+PROBLEM = DockingProblem()
+ONE_SIGMA = dict(thrust_scale=0.02, misalignment_deg=1.0, mass=0.02, nav_position=0.05, nav_velocity=5e-4)
+BOUNDS = ErrorBounds.from_dispersions(ONE_SIGMA)
+
+
+def flown(spreads: dict, n: int = 64, steps: int = 200, seed: int = 0):
+    """True states, measurements and filter estimates of ``n`` episodes under random thrust."""
+    a, b = PROBLEM.matrices()
+    draws = [draw_episode(check_spreads(spreads), episode_rng(seed + i), steps) for i in range(n)]
+    gain, nav = np.stack([d.gain for d in draws]), np.stack([d.nav for d in draws])
+    rng = np.random.default_rng(seed)
+    x = np.concatenate([rng.uniform(-60, 60, (n, 3)), rng.uniform(-0.05, 0.05, (n, 3))], axis=1)
+    nav_filter = NavigationFilter(PROBLEM, BOUNDS)
+    nav_filter.start(np.ones(n, dtype=bool), x + nav[:, 0])
+    truth, measured, estimates, thetas = [], [], [], []
+    for k in range(steps):
+        action = rng.uniform(-0.3, 0.3, (n, 3))  # excites every axis of the thrust error
+        x = x @ a.T + np.einsum("nij,nj->ni", gain, action) * PROBLEM.u_max @ b.T
+        y = x + nav[:, k + 1]
+        estimates.append(nav_filter.step(action * PROBLEM.u_max, y))
+        truth.append(x)
+        measured.append(y)
+        thetas.append(nav_filter.mean[:, 6:].copy())
+    return np.array(truth), np.array(measured), np.array(estimates), np.array(thetas), gain
+
+
+def test_a_nominal_flight_sees_no_innovation_so_the_estimate_is_the_state():
+    truth, measured, estimates, _, _ = flown({})
+    np.testing.assert_array_equal(measured, truth)
+    np.testing.assert_allclose(estimates, truth, rtol=0, atol=1e-9)
+
+
+def test_under_three_sigma_dispersions_it_beats_the_raw_measurement_and_learns_the_thrust_error():
+    stress = {name: 3 * value for name, value in ONE_SIGMA.items()}
+    truth, measured, estimates, thetas, gain = flown(stress)
+    late = slice(100, None)  # after the filter has converged
+    raw = measured[late] - truth[late]
+    error = estimates[late] - truth[late]
+    assert error[..., :3].std() < 0.35 * raw[..., :3].std()  # measured 0.24
+    assert error[..., 3:].std() < 0.25 * raw[..., 3:].std()  # measured 0.16
+    actual = (gain - np.eye(3)).reshape(len(gain), 9)
+    miss = np.linalg.norm(thetas[-1] - actual, axis=1) / np.linalg.norm(actual, axis=1)
+    assert np.median(miss) < 0.2  # measured 0.06
+
+
+def test_it_refuses_bounds_without_navigation_noise():
+    with pytest.raises(ValueError, match="nav_position"):
+        NavigationFilter(PROBLEM, ErrorBounds(thrust_scale=0.02))
+    with pytest.raises(ValueError, match="ErrorBounds"):
+        NavigationFilter(PROBLEM, ONE_SIGMA)
