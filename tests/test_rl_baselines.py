@@ -100,3 +100,10 @@ def test_residual_ppo_starts_as_the_law_and_every_curve_starts_before_learning(t
     law = evaluate(rl_baselines._Act(row.base()))
     assert first["metric"] == law[row.family.METRIC]  # a zero correction: the law to the bit
     assert first["success_rate"] == law["success_rate"]
+
+
+def test_the_iqm_interval_is_the_same_on_every_summary():
+    scores = [0.12, 0.10, 0.052, 0.062, 0.087]
+    first, again = rl_baselines.iqm_interval(scores), rl_baselines.iqm_interval(scores)
+    assert first == again
+    assert first["ci95"][0] < first["iqm"] < first["ci95"][1]
