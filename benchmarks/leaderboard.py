@@ -269,7 +269,16 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     lambda seed: TubeMPC(problem, task.bounds),
                     f"cwh_envs.tube_mpc (ErrorBounds of the 1-sigma DISPERSIONS, k={ROBUST_K_SIGMA:g})",
                     sized=True,
-                )
+                ),
+                Entry(  # the same on the navigation filter's estimate (cwh_envs.navigation)
+                    "tube MPC + navigation filter (robust)",
+                    "classical",
+                    False,
+                    lambda seed: TubeMPC(problem, task.bounds, navigation=True),
+                    f"cwh_envs.tube_mpc + cwh_envs.navigation (ErrorBounds of the 1-sigma DISPERSIONS, "
+                    f"k={ROBUST_K_SIGMA:g})",
+                    sized=True,
+                ),
             ]
             if docking
             else []
@@ -391,6 +400,7 @@ ROW_ORDER = (
     "open-loop expert",
     "MPC",
     "tube MPC (robust)",
+    "tube MPC + navigation filter (robust)",
     "closed-form feedback",
     "routed feedback",
     "closed-form feedback + robust CBF",

@@ -49,6 +49,14 @@ penalties (``soft``); the untightened corridor's plan itself, found on the way (
 tube's margins given up for that episode, the corridor's own kept); the closed-form routed law for the
 episode (``law``).
 
+**On a navigation filter** (``navigation=True``): the feedback and the law act on the estimate of
+:class:`cwh_envs.navigation.NavigationFilter` instead of the raw navigation estimate, and the thrust
+is commanded through the filter's estimated thrust error, ``G_hat^-1 u``. The plan starts from the
+first measurement, as without it; the tube stays the one above, sized for the raw estimate (the
+filter's error is not white, and no bound is claimed for it): the filter's gain is measured, not
+proven. On the 64 first constrained search starts under 3-sigma dispersions (the design probe) the
+raw estimate's 67 % success rose to 88 % with the filter and to 92 % commanding through ``G_hat``.
+
 It is a policy on observations like :class:`cwh_envs.mpc.RecedingHorizon`: ``mpc(obs)`` for
 (N, obs_dim) or (obs_dim,); a row whose observed time-to-go is the horizon starts a new episode.
 ``plan_seconds`` lists each plan's wall time; a step without a plan is a matrix product.
