@@ -80,14 +80,8 @@ from cwh_envs.robust_cbf import ErrorBounds
 
 TIME_CONSTANT = 60.0  # s: the ancillary loop's; measured on the search split (module docstring)
 REFERENCE_THRUST = 0.05  # N: the thrust level at which the thrust error is sized
-PLANS = (
-    "cold",
-    "warm",
-    "boxed",
-    "soft",
-    "corridor",
-    "law",
-)  # how each episode's plan was found, in the order tried
+# how each episode's plan was found, in the order tried
+PLANS = ("cold", "warm", "boxed", "soft", "corridor", "law")
 _TUBE_STEPS = 2000  # terms of the tube's sums: the loop's response is below 1e-100 of its start by then
 
 
@@ -193,12 +187,10 @@ class TubeMPC:
         steps_to_go = np.rint(batch[:, -1] * horizon).astype(np.int64)
         new = (steps_to_go == horizon) | self._fresh  # a new episode (or a row met mid-way)
         if self.navigation is not None:  # the filter's estimate replaces the measured [r, v]
-            if new.all() or len(self.navigation.mean) != len(batch):
-                self.navigation.start(new, batch)
-            else:
+            if not new.all():  # a batch of another size is all new (above)
                 estimate = self.navigation.step(self._commanded, batch)
-                self.navigation.start(new, batch)
                 batch[:, :6] = np.where(new[:, None], batch[:, :6], estimate)
+            self.navigation.start(new, batch)  # a new episode starts at its measurement
         thrust = np.zeros((len(batch), 3))
         for row in range(len(batch)):
             if new[row]:
