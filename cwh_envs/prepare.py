@@ -15,8 +15,10 @@ import importlib.util
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -88,15 +90,26 @@ class DataNeeds:
 
     task: str  # "rendezvous" or "docking"
     problem: object  # the family's RendezvousProblem / DockingProblem
-    pool_demos: int  # the training pool: the N_DEMOS upper bound
-    data_seed: int
     n_eval: int  # held-out evaluation starts: the search split
-    obs_dim: int  # the observation width the demonstrations must have
+    pool_demos: int | None = None  # the training pool: the N_DEMOS upper bound (None: no demonstrations)
+    data_seed: int = 0  # the demonstration pools' seed
+    obs_dim: int | None = None  # the observation width the demonstrations must have (None: unread)
     pool_recovery: int | None = None  # the recovery pool (docking's augmentation knob), if any
     n_test: int | None = None  # the sealed test split (train.py --eval-split test), if any
     # docking: other keep-out standoffs the demonstrations may keep (a family's EXPERT_MARGIN); each
     # adds a training pool and a recovery pool built with the problem at that margin
     expert_margins: tuple[float, ...] = ()
+    start_pool: int | None = None  # screened starts an RL family's training envs reset from, if any
+
+
+class DataSet(NamedTuple):
+    """One set of :func:`required_sets`: ``load(build)`` returns (starts, goals, demos or None); False
+    raises datasets.CacheMiss rather than build. ``seconds`` is a rough build time."""
+
+    description: str
+    size: int
+    load: Callable[[bool], tuple]
+    seconds: float
 
 
 def split_ids(needs: DataNeeds) -> dict[str, str]:
@@ -113,23 +126,22 @@ def split_ids(needs: DataNeeds) -> dict[str, str]:
     return ids
 
 
-def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
-    """(description, trajectories, loader) per set.
-
-    A loader takes ``build`` (False: raise datasets.CacheMiss rather than build) and returns
-    (starts, goals, demos).
-    """
+def required_sets(needs: DataNeeds) -> list[DataSet]:
+    """Every set ``needs`` names: the demonstration pools, the splits, the recovery pools, the start pool."""
     task, problem, seed = needs.task, needs.problem, needs.data_seed
+    solve = build_estimate(needs)
 
     def split(name, n):
         def held_out(build):
             demos = datasets.evaluation_set(task, n, problem=problem, split=name, build=build)
             return demos.starts, demos.goals, demos
 
-        return (f"{task} {name} split: evaluation_set(n={n}, split={name!r})", n, held_out)
+        return DataSet(f"{task} {name} split: evaluation_set(n={n}, split={name!r})", n, held_out, n * solve)
 
     margins = [m for m in needs.expert_margins if m != problem.margin]
     experts = [("", problem), *((f" (expert margin {m} m)", problem.replace(margin=m)) for m in margins)]
+    if needs.pool_demos is None:  # a learner without demonstrations (an RL family): no pools
+        experts = []
     pools, recoveries = [], []
     for where, expert in experts:
 
@@ -144,24 +156,40 @@ def required_sets(needs: DataNeeds) -> list[tuple[str, int, object]]:
             return demos.starts, demos.goals, demos
 
         call = f"demonstrations(n={needs.pool_demos}, seed={seed})"
-        pools.append((f"{task} training pool{where}: {call}", needs.pool_demos, pool))
+        pools.append(
+            DataSet(f"{task} training pool{where}: {call}", needs.pool_demos, pool, needs.pool_demos * solve)
+        )
         if needs.pool_recovery is not None:
             call = f"recovery_demonstrations(n={needs.pool_recovery}, seed={seed})"
-            recoveries.append((f"{task} recovery pool{where}: {call}", needs.pool_recovery, recovery))
+            n = needs.pool_recovery
+            recoveries.append(DataSet(f"{task} recovery pool{where}: {call}", n, recovery, n * solve))
     sets = [*pools, split("search", needs.n_eval)]
     if needs.n_test is not None:
         sets.append(split("test", needs.n_test))
+    if needs.start_pool is not None:
+
+        def starts(build):
+            pool = datasets.start_pool(task, needs.start_pool, problem, build=build)
+            return pool.starts, pool.goals, None
+
+        n = needs.start_pool
+        sets.append(
+            DataSet(f"{task} start pool: start_pool(n={n})", n, starts, n * SECONDS_PER_SCREENED_START)
+        )
     return [*sets, *recoveries]
 
 
 def inconsistency(needs: DataNeeds, expected: int, starts, goals, demos) -> str | None:
-    """Why a loaded set does not match what the family expects, or None."""
+    """Why a loaded set does not match what the family expects, or None (``demos`` None: a start pool)."""
     if starts.shape != (expected, 6) or goals.shape != (expected, 3):
         return f"holds {len(starts)} starts, expected {expected}"
     if not (np.all(np.isfinite(starts)) and np.all(np.isfinite(goals))):
         return "non-finite starts or goals"
-    if demos.observations.shape[1] != needs.obs_dim or len(demos.actions) != len(demos.observations):
-        return f"observations have shape {demos.observations.shape}, expected (M, {needs.obs_dim})"
+    if demos is None:
+        return None
+    width = demos.observations.shape[1] if needs.obs_dim is None else needs.obs_dim  # None: any width
+    if demos.observations.shape[1] != width or len(demos.actions) != len(demos.observations):
+        return f"observations have shape {demos.observations.shape}, expected (M, {width})"
     finite = np.all(np.isfinite(demos.observations)) and np.all(np.isfinite(demos.actions))
     if not finite or np.abs(demos.actions).max() > needs.problem.u_max * (1 + 1e-6):
         return "non-finite observations or thrust outside the box"
@@ -179,7 +207,7 @@ def shared_starts(sealed: np.ndarray, other: np.ndarray) -> int:
 def check(needs: DataNeeds) -> int:
     failures, sets, loaded = [], required_sets(needs), {}
     started = time.perf_counter()
-    for description, expected, load in sets:
+    for description, expected, load, _ in sets:
         try:
             starts, goals, demos = load(build=False)
             reason = inconsistency(needs, expected, starts, goals, demos)
@@ -214,36 +242,40 @@ def check(needs: DataNeeds) -> int:
 SECONDS_PER_TRAJECTORY = {"rendezvous": 3e-4, "docking": 5e-3, "docking, path-constrained": 1.5}
 
 
-def build_estimate(needs: DataNeeds, trajectories: int) -> float:
-    """Rough seconds to build a set of ``trajectories`` for ``needs`` (screening included)."""
+# Seconds to screen one start of a start pool (no expert solve): 65,536 docking starts took 2.5 s here.
+SECONDS_PER_SCREENED_START = 4e-5
+
+
+def build_estimate(needs: DataNeeds) -> float:
+    """Rough seconds to build one expert trajectory for ``needs`` (screening included)."""
     kind = needs.task
     if getattr(needs.problem, "speed_limit", None) is not None or getattr(
         needs.problem, "approach_cone", None
     ):
         kind = "docking, path-constrained"
-    return trajectories * SECONDS_PER_TRAJECTORY[kind]
+    return SECONDS_PER_TRAJECTORY[kind]
 
 
 def warm(needs: DataNeeds) -> int:
     """Build every missing set, saying up front what will be built and about how long it takes."""
     sets = required_sets(needs)
     missing = []
-    for description, expected, load in sets:
+    for data in sets:
         try:
-            load(build=False)
+            data.load(build=False)
         except datasets.CacheMiss:
-            missing.append((description, expected))
+            missing.append(data)
     if missing:
-        total = sum(build_estimate(needs, n) for _, n in missing)
+        total = sum(data.seconds for data in missing)
         print(
             f"to build: {len(missing)} of {len(sets)} data sets, about {_duration(total)} in all:", flush=True
         )
-        for description, n in missing:
-            print(f"  - {description}: about {_duration(build_estimate(needs, n))}", flush=True)
-    for description, _, load in sets:
+        for data in missing:
+            print(f"  - {data.description}: about {_duration(data.seconds)}", flush=True)
+    for data in sets:
         started = time.perf_counter()
-        load(build=True)
-        print(f"ready: {description} ({time.perf_counter() - started:.1f} s)", flush=True)
+        data.load(build=True)
+        print(f"ready: {data.description} ({time.perf_counter() - started:.1f} s)", flush=True)
     return check(needs)
 
 

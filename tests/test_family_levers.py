@@ -744,7 +744,7 @@ def test_each_expert_margin_has_its_own_pools_and_the_default_is_the_problems(tr
         pool_recovery=4,
         expert_margins=train.EXPERT_MARGINS,
     )
-    described = [description for description, _, _ in required_sets(needs)]
+    described = [data.description for data in required_sets(needs)]
     assert len(described) == 1 + 2 * len(
         train.EXPERT_MARGINS
     )  # the search split, a pool and a recovery pool each
