@@ -60,6 +60,7 @@ from cwh_envs.controllers import MinEnergyFeedback, WaypointFeedback, pd_action
 from cwh_envs.core import filter_actions
 from cwh_envs.datasets import evaluation_set
 from cwh_envs.mpc import RecedingHorizon
+from cwh_envs.navigation import NavigationFilter
 from cwh_envs.prepare import load_train
 from cwh_envs.robust_cbf import ErrorBounds
 from cwh_envs.rollout import fly
@@ -197,9 +198,16 @@ class Task:
         return ErrorBounds.from_dispersions(self.dispersions, k_sigma=ROBUST_K_SIGMA)
 
     def fly(
-        self, policy, cbf: bool, starts: int | None = None, scale: float | None = None, robust: bool = False
+        self,
+        policy,
+        cbf: bool,
+        starts: int | None = None,
+        scale: float | None = None,
+        robust: bool = False,
+        navigation: bool = False,
     ):
-        """Nominal, or under the dispersions scaled by ``scale`` (the filter on the estimate)."""
+        """Nominal, or under the dispersions scaled by ``scale`` (the filter on the estimate; with
+        ``navigation``, everything on the navigation filter's estimate, sized by :attr:`bounds`)."""
         held = self.held_out if starts is None else self.held_out.take(starts)
         return fly(
             self.problem,
@@ -210,6 +218,7 @@ class Task:
             cbf_bounds=self.bounds if robust else None,
             dispersions=None if scale is None else {k: scale * v for k, v in self.dispersions.items()},
             dispersion_seed=getattr(self.train, "DISPERSION_SEED", 0),
+            navigation=self.bounds if navigation else None,
         )
 
 
@@ -227,6 +236,7 @@ class Entry:
     starts: int | None = None  # fewer starts than the split (MPC on constrained docking)
     robust: bool = False  # through the robust filter (cwh_envs.robust_cbf), sized by Task.bounds
     sized: bool = False  # a controller sized by Task.bounds itself (the tube MPC), no filter
+    navigation: bool = False  # flown on a navigation filter sized by Task.bounds (rollout.fly's navigation)
 
 
 class OpenLoop:
@@ -314,7 +324,20 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     else (lambda seed: MinEnergyFeedback(plain)),
                     f"cwh_envs.robust_cbf (ErrorBounds of the 1-sigma DISPERSIONS, k={ROBUST_K_SIGMA:g})",
                     robust=True,
-                )
+                ),
+                Entry(  # the same on flight software's navigation filter (cwh_envs.navigation)
+                    f"{'routed' if task.name == 'docking-constrained' else 'closed-form'} feedback + robust CBF"
+                    " + navigation filter",
+                    "classical",
+                    True,
+                    (lambda seed: WaypointFeedback(problem))
+                    if task.name == "docking-constrained"
+                    else (lambda seed: MinEnergyFeedback(plain)),
+                    f"cwh_envs.robust_cbf + cwh_envs.navigation (ErrorBounds of the 1-sigma DISPERSIONS, "
+                    f"k={ROBUST_K_SIGMA:g})",
+                    robust=True,
+                    navigation=True,
+                ),
             ]
             if docking
             else []
@@ -405,6 +428,8 @@ ROW_ORDER = (
     "routed feedback",
     "closed-form feedback + robust CBF",
     "routed feedback + robust CBF",
+    "closed-form feedback + robust CBF + navigation filter",
+    "routed feedback + robust CBF + navigation filter",
     "PD",
     "family best (BC)",
     "first GP campaign (BC)",
@@ -508,7 +533,7 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
     per_seed = []
     for seed in seeds if entry.kind != "classical" else [None]:
         policy = entry.make(seed)
-        flight = task.fly(policy, entry.cbf, entry.starts, robust=entry.robust)
+        flight = task.fly(policy, entry.cbf, entry.starts, robust=entry.robust, navigation=entry.navigation)
         metrics = task.metrics(flight)
         result = {
             "seed": seed,
@@ -523,7 +548,7 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
         result["dispersed"] = {}
         for level, scale in DISPERSION_LEVELS.items():
             disturbed = entry.make(seed)
-            dispersed = task.fly(disturbed, entry.cbf, entry.starts, scale, entry.robust)
+            dispersed = task.fly(disturbed, entry.cbf, entry.starts, scale, entry.robust, entry.navigation)
             result["dispersed"][level] = dispersed_summary(dispersed)
             if isinstance(
                 disturbed, RecedingHorizon
@@ -538,7 +563,9 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
             first = (
                 flight
                 if n == len(flight.terminal_distance)
-                else task.fly(entry.make(seed), entry.cbf, n, robust=entry.robust)
+                else task.fly(
+                    entry.make(seed), entry.cbf, n, robust=entry.robust, navigation=entry.navigation
+                )
             )
             result["subset"] = {"n_starts": n, "metric": task.metrics(first)[task.train.METRIC]}
         per_seed.append(result)
@@ -588,8 +615,9 @@ def violation_rates(task: Task, flight) -> dict | None:
 
 
 def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
-    """p50 and p99 [µs] of one step's compute for one start: the policy on one observation, then
-    the filter on its action (docking rows with a CBF). MPC's solve is timed inside it, without the
+    """p50 and p99 [µs] of one step's compute for one start: the navigation filter's update and
+    thrust correction (rows on it), the policy on one observation, then the filter on its action
+    (docking rows with a CBF). MPC's solve is timed inside it, without the
     condensed model of each remaining horizon, which is built once and shared."""
     n = min(2 if entry.starts else TIMED_STARTS, len(task.held_out.starts))
     samples, plans = [], []
@@ -611,6 +639,7 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
             held.goals[i : i + 1] if task.docking else None,
             cbf_margin=task.problem.margin if entry.cbf else None,
             cbf_bounds=task.bounds if entry.robust else None,
+            navigation=task.bounds if entry.navigation else None,
         )
         if isinstance(policy, RecedingHorizon):
             seconds = np.array(policy.solve_seconds)
@@ -629,6 +658,14 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
                         task.bounds if entry.robust else None,
                     )
                     seconds[k] += time.perf_counter() - started
+        if entry.navigation:  # its update on each step's measurement (nominal: the state) and G_hat^-1 u
+            navigator = NavigationFilter(task.problem, task.bounds)
+            navigator.start(np.ones(1, dtype=bool), flight.states[:, 0])
+            for k in range(1, len(calls)):
+                started = time.perf_counter()
+                navigator.step(flight.thrust[:, k - 1], flight.states[:, k])
+                np.linalg.solve(navigator.thrust_gain(), flight.thrust[:, k, :, None])
+                seconds[k] += time.perf_counter() - started
         samples.append(seconds)
         if isinstance(policy, TubeMPC):
             plans.extend(policy.plan_seconds)

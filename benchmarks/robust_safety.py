@@ -73,6 +73,11 @@ def rows(problem, bounds: ErrorBounds, mpc_starts: int) -> list[dict]:
             make=lambda: law(problem),
             fly=dict(cbf_margin=problem.margin, cbf_bounds=bounds),
         ),
+        dict(  # the same on flight software's navigation filter, commanding through its thrust estimate
+            name=f"{label} + robust CBF + navigation filter (1σ bounds, k={bounds.k_sigma:g})",
+            make=lambda: law(problem),
+            fly=dict(cbf_margin=problem.margin, cbf_bounds=bounds, navigation=bounds),
+        ),
         dict(  # the robust MPC of the targets: one plan per episode, cheap enough for every start
             name=f"tube MPC (1σ bounds, k={bounds.k_sigma:g})",
             make=lambda: TubeMPC(problem, bounds),

@@ -31,6 +31,7 @@ from cwh_envs.core import (
     filter_actions,
 )
 from cwh_envs.dispersions import FILTER_SEES, check_spreads, draw_episode, episode_rng, noisy
+from cwh_envs.navigation import NavigationFilter
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
 Policy = Callable[[np.ndarray], np.ndarray]
@@ -82,6 +83,7 @@ def fly(
     dispersion_seed: int = 0,
     filter_sees: str = "estimate",
     cbf_bounds=None,
+    navigation=None,
 ) -> Flight:
     """Fly ``policy`` from every start (N, 6) at once (docking: to ``goals`` (N, 3)) for H steps.
 
@@ -99,6 +101,15 @@ def fly(
     ``cbf_bounds`` (:class:`cwh_envs.robust_cbf.ErrorBounds`, with ``cbf_margin``) flies the robust
     filter instead of the nominal one; ``cbf_margin_scale`` (N, H) then says how much of its margin
     each step kept.
+
+    ``navigation`` (:class:`cwh_envs.robust_cbf.ErrorBounds`, docking) puts flight software's
+    navigation filter between the measurement and everything that acts on it: a
+    :class:`cwh_envs.navigation.NavigationFilter` sized by those bounds estimates ``[r, v]`` and the
+    episode's thrust error from the measurements and the thrust commanded; the policy observes its
+    estimate, the CBF filter acts on it (unless ``filter_sees="truth"``), and the thrust is commanded
+    through the estimated thrust error, ``G_hat^-1 u`` (clipped to the box), so that the plant's
+    ``G`` delivers about ``u``. A nominal flight sees no innovation and flies as without it (to
+    rounding).
     """
     docking = isinstance(problem, DockingProblem)
     if not docking and not isinstance(problem, RendezvousProblem):
@@ -124,6 +135,8 @@ def fly(
         raise ValueError("cbf_bounds sizes the filter's margins: it needs cbf_margin (the filter) too")
     if filter_sees not in FILTER_SEES:
         raise ValueError(f"filter_sees must be one of {FILTER_SEES}, got {filter_sees!r}")
+    if navigation is not None and not docking:
+        raise ValueError("navigation (a navigation filter) is for docking problems")
     horizon = problem.horizon
     gains = nav = None
     if dispersions is not None:
@@ -138,19 +151,31 @@ def fly(
     several = docking and path_constrained(problem)  # the filter then says what it dropped
     dropped = np.zeros((n, horizon, 3), dtype=bool) if margin is not None and several else None
     kept = np.ones((n, horizon)) if cbf_bounds is not None else None
+    navigator = None if navigation is None else NavigationFilter(problem, navigation)
+    commanded = np.zeros((n, 3))  # N: the thrust last commanded, which the navigation filter predicts with
     states[:, 0] = core.states
     final = None
     for k in range(horizon):
         observed = core.observe() if nav is None else noisy(core.observe(), nav[:, k])
+        measured = core.states if nav is None else core.states + nav[:, k]
+        if navigator is not None:  # the filter's estimate replaces the measurement everywhere
+            if k == 0:
+                navigator.start(np.ones(n, dtype=bool), measured)
+            else:
+                measured = navigator.step(commanded, measured)
+            observed[:, :6] = measured
         actions = check_actions(policy(observed), (n, 3))
         if margin is not None:
-            seen = core.states if nav is None or filter_sees == "truth" else core.states + nav[:, k]
+            seen = core.states if filter_sees == "truth" else measured
             actions, result = filter_actions(actions, seen, problem, margin, core.goals, cbf_bounds)
             active[:, k], infeasible[:, k] = result.active, result.infeasible
             if dropped is not None:
                 dropped[:, k] = result.dropped
             if kept is not None:
                 kept[:, k] = result.margin_scale
+        if navigator is not None:
+            actions = np.clip(np.linalg.solve(navigator.thrust_gain(), actions[..., None])[..., 0], -1.0, 1.0)
+            commanded = actions * problem.u_max
         if gains is not None:
             actions = np.clip(np.einsum("nij,nj->ni", gains, actions), -1.0, 1.0)
         thrust[:, k] = actions * problem.u_max  # exactly what the core applies

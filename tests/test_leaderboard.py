@@ -133,8 +133,8 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     starts the flight itself says broke each constraint, with the flight's own deepest violation."""
     board = leaderboard()
     task = board.Task.load("docking-constrained", 4)
-    (entry,) = [e for e in board.entries(task, ROOT / "runs" / "leaderboard", [1]) if e.robust]
-    assert entry.name == "routed feedback + robust CBF"
+    entry, on_filter = [e for e in board.entries(task, ROOT / "runs" / "leaderboard", [1]) if e.robust]
+    assert entry.name == "routed feedback + robust CBF" and not entry.navigation
     measured = board.measure(task, entry, [1])["per_seed"][0]
     assert set(measured["dispersed"]) == {"1sigma", "3sigma"}
     stressed = task.fly(entry.make(None), True, None, 3.0, robust=True)
@@ -148,6 +148,13 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     row = board.row(task, entry, {"per_seed": [measured]}, None)
     assert row["robust_bounds"]["k_sigma"] == board.ROBUST_K_SIGMA
     assert row["dispersed"]["1sigma"]["success_rate"] == row["dispersed_success_rate"]
+    # Its sibling on the navigation filter: the same nominal flight, another dispersed one.
+    assert on_filter.name == "routed feedback + robust CBF + navigation filter" and on_filter.navigation
+    flown = task.fly(on_filter.make(None), True, None, robust=True, navigation=True)
+    np.testing.assert_allclose(flown.states, task.fly(entry.make(None), True, robust=True).states, atol=1e-9)
+    on_estimate = task.fly(on_filter.make(None), True, None, 3.0, robust=True, navigation=True)
+    assert not np.allclose(on_estimate.states, stressed.states)
+    assert board.time_per_step(task, on_filter, None)["steps"] == 4 * task.problem.horizon  # 4 starts loaded
 
 
 def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs():

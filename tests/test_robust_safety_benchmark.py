@@ -23,6 +23,7 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
         "routed law + CBF",
         "routed law + CBF fed the truth (comparison)",
         "routed law + robust CBF (1σ bounds, k=3)",
+        "routed law + robust CBF + navigation filter (1σ bounds, k=3)",
         "tube MPC (1σ bounds, k=3)",
         "tube MPC + navigation filter (1σ bounds, k=3)",
     ]
@@ -34,13 +35,15 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
     # Without dispersions, the nominal and the truth-fed filter are one flight.
     assert payload["rows"][0]["nominal"] == payload["rows"][1]["nominal"]
     table = (tmp_path / "docking-constrained.md").read_text()
-    assert "--starts 3" in table and table.count("| routed law") == 3
-    for tube in payload["rows"][3:]:
+    assert "--starts 3" in table and table.count("| routed law") == 4
+    # On the navigation filter a nominal flight has no innovation: the robust CBF flies as on the state.
+    assert payload["rows"][3]["nominal"] == payload["rows"][2]["nominal"]
+    for tube in payload["rows"][4:]:
         for level in ("nominal", "1σ", "3σ"):  # one plan per start, at every level
             assert sum(tube[level]["plans"].values()) == 3
     assert "Tube MPC plans, one per episode" in table
     # Without dispersions the filter sees no innovation: the filtered tube MPC flies as the plain one.
-    assert payload["rows"][4]["nominal"]["success"] == payload["rows"][3]["nominal"]["success"]
+    assert payload["rows"][5]["nominal"]["success"] == payload["rows"][4]["nominal"]["success"]
 
     # --rows flies the rows named and keeps the others as they were, each with its own command.
     robust_safety.main(["--starts", "3", "--out", str(tmp_path), "--rows", "routed law + CBF fed"])
