@@ -985,3 +985,33 @@ def test_a_docking_run_with_the_robust_filter_flies_it_and_records_the_stress_se
     assert search["dispersed_violating_share"] == search["dispersed"]["violating_starts"] / n_eval
     assert search["dispersed_3sigma"]["dispersions"]["nav_position"] == pytest.approx(3 * 0.05)
     assert set(search["dispersed_3sigma"]["breaking_starts"]) == {"keep_out"}
+
+
+def test_the_navigation_filter_lever_puts_the_policy_and_the_filter_on_its_estimate(trains):
+    """NAVIGATION_FILTER (issue 58): the family's flight software gains the navigation filter sized for
+    its DISPERSIONS; a nominal flight is unchanged, a dispersed one is not (the lever is used), and a
+    small random route policy through the robust filter on it keeps every constraint at 3 sigma."""
+    train = trains["docking-constrained"]
+    config = {**defaults(train), "POLICY_FORM": "route", "ROBUST_FILTER_K": 3.0}
+    raw, on_filter = train.safety_filter(config), train.safety_filter({**config, "NAVIGATION_FILTER": True})
+    assert "navigation" not in raw and on_filter["navigation"] == ErrorBounds.from_dispersions(
+        train.DISPERSIONS
+    )
+    assert on_filter["cbf_bounds"] == raw["cbf_bounds"]
+    policy = small_policy(train, "route")
+    starts, goals = starts_of(train, 16)
+    np.testing.assert_allclose(
+        train.fly(policy, starts, goals, on_filter).states,
+        train.fly(policy, starts, goals, raw).states,
+        atol=1e-9,
+    )
+    stress = {name: train.STRESS_SCALE * value for name, value in train.DISPERSIONS.items()}
+    flown = train.fly(policy, starts, goals, on_filter, stress)
+    assert not np.allclose(flown.states, train.fly(policy, starts, goals, raw, stress).states)
+    for depth in (flown.keep_out_depth, flown.speed_depth, flown.cone_depth):
+        np.testing.assert_array_equal(depth, 0.0)
+    assert train.safety_filter({**config, "RUNTIME_CBF_FILTER": False, "NAVIGATION_FILTER": True}) == {
+        "navigation": on_filter["navigation"]
+    }
+    with pytest.raises(SystemExit, match="NAVIGATION_FILTER"):
+        train.check_config({**config, "NAVIGATION_FILTER": "yes"})

@@ -51,7 +51,11 @@ filter instead (cwh_envs.robust_cbf: every constraint tightened for DISPERSIONS 
 DAGGER_DISPERSED flies DAgger's rounds under DISPERSIONS, so that the relabelled states are the ones
 a dispersed flight visits. FINETUNE_DISPERSED flies fine-tuning's rollouts under DISPERSIONS too (a
 fresh draw per start and step: thrust gain on the plant, navigation noise on what the policy sees),
-so that the policy is fine-tuned through the dynamics it will fly (issue 58).
+so that the policy is fine-tuned through the dynamics it will fly (issue 58). NAVIGATION_FILTER puts
+flight software's navigation filter (cwh_envs.navigation, sized for DISPERSIONS) between the
+measurement and the policy and the safety filter, which then act on its estimate, and commands the
+thrust through its estimate of the thrust error (rollout.fly's ``navigation``); a nominal flight is
+unchanged.
 """
 
 from __future__ import annotations
@@ -112,6 +116,7 @@ FINETUNE_CONE_TIGHTEN = 0.0  # degrees: fine-tuning holds a cone this much narro
 ROBUST_FILTER_K = 0.0  # > 0: the filter is the robust one, sized for DISPERSIONS at this many sigmas
 DAGGER_DISPERSED = False  # True: DAgger's rounds are flown under DISPERSIONS
 FINETUNE_DISPERSED = False  # True: fine-tuning flies each start under a fresh draw of DISPERSIONS
+NAVIGATION_FILTER = False  # True: the policy and the filter act on a navigation filter's estimate
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -172,6 +177,7 @@ CONFIG_NAMES = (
     "ROBUST_FILTER_K",
     "DAGGER_DISPERSED",
     "FINETUNE_DISPERSED",
+    "NAVIGATION_FILTER",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual", "route")
@@ -328,6 +334,8 @@ def check_config(config: dict) -> None:
         problems.append("DAGGER_DISPERSED must be True or False")
     if not isinstance(config["FINETUNE_DISPERSED"], bool):
         problems.append("FINETUNE_DISPERSED must be True or False")
+    if not isinstance(config["NAVIGATION_FILTER"], bool):
+        problems.append("NAVIGATION_FILTER must be True or False")
     frac = config["RECOVERY_AUGMENT_FRAC"]
     if not (isinstance(frac, int | float) and 0 <= frac <= MAX_RECOVERY_FRAC):
         problems.append(f"RECOVERY_AUGMENT_FRAC must lie in [0, {MAX_RECOVERY_FRAC}]")
@@ -846,14 +854,16 @@ def finetune(
 
 
 def safety_filter(config: dict) -> dict:
-    """The recipe's filter, as fly's keywords: none; the multi-constraint CBF filter (keep-out margin
-    PROBLEM.margin); or, with ROBUST_FILTER_K > 0, its robust form sized for DISPERSIONS."""
+    """The recipe's flight software, as fly's keywords: with NAVIGATION_FILTER, the navigation filter
+    sized for DISPERSIONS; then no filter, the multi-constraint CBF filter (keep-out margin
+    PROBLEM.margin), or, with ROBUST_FILTER_K > 0, its robust form sized for DISPERSIONS."""
+    out = {"navigation": ErrorBounds.from_dispersions(DISPERSIONS)} if config["NAVIGATION_FILTER"] else {}
     if not config["RUNTIME_CBF_FILTER"]:
-        return {}
+        return out
     if config["ROBUST_FILTER_K"] > 0:
         bounds = ErrorBounds.from_dispersions(DISPERSIONS, k_sigma=float(config["ROBUST_FILTER_K"]))
-        return {"cbf_margin": PROBLEM.margin, "cbf_bounds": bounds}
-    return {"cbf_margin": PROBLEM.margin}
+        return {**out, "cbf_margin": PROBLEM.margin, "cbf_bounds": bounds}
+    return {**out, "cbf_margin": PROBLEM.margin}
 
 
 def fly(policy: Policy, starts: np.ndarray, goals: np.ndarray, safety: dict, dispersions=None) -> Flight:
