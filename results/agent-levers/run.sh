@@ -15,6 +15,7 @@
 # family's protocols (docking's `fuel`: feasible only at most 1.5x the expert's energy).
 # ENQUEUE=FILE runs that file's configurations first (loop --enqueue: a hand-found recipe the audit
 # can then reseed like any other candidate; the campaign records it as enqueued, not proposed).
+# WORKERS (default 2) runs that many trainings at once, in the campaign and its audit.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 export OMP_NUM_THREADS=1 MPLBACKEND=Agg PATH="$PWD/.venv/bin:$PATH"
@@ -28,6 +29,7 @@ esac
 RUNS=${RUNS:-$runs}
 BUDGET=${BUDGET:-$budget}
 SEEDS=${SEEDS:-5}
+WORKERS=${WORKERS:-2}
 dir=results/agent-levers/$family-gp
 warm_start=(--warm-start "${warm[@]}")
 if [ "${WARM:-1}" = 0 ]; then dir=$dir-cold; warm_start=(); fi
@@ -41,14 +43,14 @@ if [ -f "$dir/campaign.json" ]; then
   autoresearch loop --resume --campaign "$dir" --plain
 else
   # The plateau rule off: the campaign spends its run budget (the target is a report line by default).
-  autoresearch loop --family "$family" --proposer gp --seed 0 --workers 2 --max-runs "$RUNS" \
+  autoresearch loop --family "$family" --proposer gp --seed 0 --workers "$WORKERS" --max-runs "$RUNS" \
     --max-iters 1000 --plateau-window 1000 --max-failures 20 --time-budget "$BUDGET" --eval-allowance 300 \
     "${warm_start[@]}" "${protocol[@]}" "${enqueue[@]}" --campaign "$dir" --plain
 fi
 echo "[agent-levers] $family: campaign done at $((SECONDS - start)) s"
 if [ "${AUDIT:-audit}" = verify ]; then
-  autoresearch verify --campaign "$dir" --top 1 --seeds "$SEEDS" --workers 2
+  autoresearch verify --campaign "$dir" --top 1 --seeds "$SEEDS" --workers "$WORKERS"
 else
-  autoresearch audit --campaign "$dir" --top 1 --seeds "$SEEDS" --workers 2
+  autoresearch audit --campaign "$dir" --top 1 --seeds "$SEEDS" --workers "$WORKERS"
 fi
 echo "[agent-levers] $family: ${AUDIT:-audit} done at $((SECONDS - start)) s"
