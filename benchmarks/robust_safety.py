@@ -88,6 +88,11 @@ def rows(problem, bounds: ErrorBounds, mpc_starts: int) -> list[dict]:
             make=lambda: TubeMPC(problem, bounds, navigation=True),
             fly={},
         ),
+        dict(  # the tube MPC under the robust CBF, both on fly's navigation filter: the layers together
+            name=f"tube MPC + robust CBF + navigation filter (1σ bounds, k={bounds.k_sigma:g})",
+            make=lambda: TubeMPC(problem, bounds),
+            fly=dict(cbf_margin=problem.margin, cbf_bounds=bounds, navigation=bounds),
+        ),
     ]
     if mpc_starts:
         out += [

@@ -26,6 +26,7 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
         "routed law + robust CBF + navigation filter (1σ bounds, k=3)",
         "tube MPC (1σ bounds, k=3)",
         "tube MPC + navigation filter (1σ bounds, k=3)",
+        "tube MPC + robust CBF + navigation filter (1σ bounds, k=3)",
     ]
     for row in payload["rows"]:
         assert row["starts"] == 3 and row["us_per_step"] > 0
