@@ -125,4 +125,4 @@ def test_the_readmes_leaderboard_is_the_committed_one():
     assert (ROOT / "results" / "leaderboard-summary.md").read_text(encoding="utf-8") == block
     for task in ("rendezvous", "docking", "docking-constrained"):
         assert f"**{task}**" in block
-    assert "family best (BC)" in block and "MPC" in block and "PD" in block
+    assert "family best (BC)" in block and "MPC" in block and "robust CBF" in block
