@@ -254,6 +254,11 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
     problem, docking = task.problem, task.docking
     plain = problem.replace(speed_limit=None, approach_cone=None) if docking else problem
     mpc_starts = (mpc_starts or MPC_STARTS[task.name]) if task.name in MPC_STARTS else None
+    # the law the robust filter's rows fly: the routed one on constrained docking, else the closed form
+    routed = task.name == "docking-constrained"
+    law_name = "routed feedback" if routed else "closed-form feedback"
+    law = (lambda seed: WaypointFeedback(problem)) if routed else (lambda seed: MinEnergyFeedback(plain))
+    bounds_source = f"ErrorBounds of the 1-sigma DISPERSIONS, k={ROBUST_K_SIGMA:g}"
     rows = [
         Entry(
             "open-loop expert",
@@ -277,7 +282,7 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     "classical",
                     False,
                     lambda seed: TubeMPC(problem, task.bounds),
-                    f"cwh_envs.tube_mpc (ErrorBounds of the 1-sigma DISPERSIONS, k={ROBUST_K_SIGMA:g})",
+                    f"cwh_envs.tube_mpc ({bounds_source})",
                     sized=True,
                 ),
                 Entry(  # the same on the navigation filter's estimate (cwh_envs.navigation)
@@ -285,8 +290,7 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     "classical",
                     False,
                     lambda seed: TubeMPC(problem, task.bounds, navigation=True),
-                    f"cwh_envs.tube_mpc + cwh_envs.navigation (ErrorBounds of the 1-sigma DISPERSIONS, "
-                    f"k={ROBUST_K_SIGMA:g})",
+                    f"cwh_envs.tube_mpc + cwh_envs.navigation ({bounds_source})",
                     sized=True,
                 ),
             ]
@@ -316,25 +320,19 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
         *(
             [  # the law above it through the robust filter (issue 58): the price of robustness beside it
                 Entry(
-                    f"{'routed' if task.name == 'docking-constrained' else 'closed-form'} feedback + robust CBF",
+                    f"{law_name} + robust CBF",
                     "classical",
                     True,
-                    (lambda seed: WaypointFeedback(problem))
-                    if task.name == "docking-constrained"
-                    else (lambda seed: MinEnergyFeedback(plain)),
-                    f"cwh_envs.robust_cbf (ErrorBounds of the 1-sigma DISPERSIONS, k={ROBUST_K_SIGMA:g})",
+                    law,
+                    f"cwh_envs.robust_cbf ({bounds_source})",
                     robust=True,
                 ),
                 Entry(  # the same on flight software's navigation filter (cwh_envs.navigation)
-                    f"{'routed' if task.name == 'docking-constrained' else 'closed-form'} feedback + robust CBF"
-                    " + navigation filter",
+                    f"{law_name} + robust CBF + navigation filter",
                     "classical",
                     True,
-                    (lambda seed: WaypointFeedback(problem))
-                    if task.name == "docking-constrained"
-                    else (lambda seed: MinEnergyFeedback(plain)),
-                    f"cwh_envs.robust_cbf + cwh_envs.navigation (ErrorBounds of the 1-sigma DISPERSIONS, "
-                    f"k={ROBUST_K_SIGMA:g})",
+                    law,
+                    f"cwh_envs.robust_cbf + cwh_envs.navigation ({bounds_source})",
                     robust=True,
                     navigation=True,
                 ),
