@@ -106,3 +106,20 @@ def test_the_robust_filter_lever_flies_the_robust_filter_and_the_protocol_limits
     assert family.limits == {"dispersed_violating_share": 0.001}
     assert family.is_feasible({"strict_feasible": True, "dispersed_violating_share": 0.0})
     assert not family.is_feasible({"strict_feasible": True, "dispersed_violating_share": 1 / 128})
+    # robust-fuel: issue 58's learned target as the gate, each clause able to fail the run alone.
+    target = Family.load(FAMILY).under_protocol("robust-fuel")
+    meets = {
+        "strict_feasible": True,
+        "dispersed_violating_share": 0.0,
+        "dispersed_failure_share": 0.0,
+        "dispersed_3sigma_failure_share": 1 / 128,
+        "effort_ratio": 2.4,
+    }
+    assert target.is_feasible(meets)
+    for field, miss in (
+        ("dispersed_violating_share", 1 / 128),
+        ("dispersed_failure_share", 1 / 128),
+        ("dispersed_3sigma_failure_share", 2 / 128),
+        ("effort_ratio", 2.6),
+    ):
+        assert not target.is_feasible({**meets, field: miss}), field

@@ -25,7 +25,8 @@ violating starts and the deepest violation of each constraint of the same policy
 starts under DISPERSIONS (1 sigma), the filter acting on the navigation estimate as flight software's
 does; ``dispersed_3sigma`` the same under the dispersions scaled by STRESS_SCALE. Neither enters the
 score; ``dispersed_violating_share`` (the 1-sigma share of starts breaking any constraint) is what
-family.json's ``robust`` protocol limits. The cone is scored with the 0.1 m capture envelope at the
+family.json's ``robust`` protocol limits; ``robust-fuel`` also limits ``dispersed_failure_share`` and
+``dispersed_3sigma_failure_share`` (the shares of starts not docked at each level) and the fuel. The cone is scored with the 0.1 m capture envelope at the
 port (cwh_envs.constraints.CAPTURE_RADIUS).
 
 Levers beyond the paper's behaviour cloning (the ``algorithm`` axis; their defaults are plain
@@ -961,6 +962,9 @@ def evaluate(policy: Policy, held_out: Demonstrations, safety: dict, dispersed: 
             metrics[key] = dispersed_metrics(flown, spreads)
         # What the robust protocol limits (family.json): the 1-sigma share of starts breaking anything.
         metrics["dispersed_violating_share"] = metrics["dispersed"]["violating_starts"] / len(held_out.starts)
+        # What the robust-fuel protocol also limits: the share of starts not docked at each level.
+        metrics["dispersed_failure_share"] = 1.0 - metrics["dispersed"]["success_rate"]
+        metrics["dispersed_3sigma_failure_share"] = 1.0 - metrics["dispersed_3sigma"]["success_rate"]
     return metrics
 
 
