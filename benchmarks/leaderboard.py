@@ -17,7 +17,10 @@ test split, 1024 screened starts), it flies:
   key-free agent campaign certified (:data:`AGENT_RECIPES`), each trained by the family's own
   train.py at every seed of ``--seeds`` (the family best under the training time budget it was
   certified under, when its entry names one: ``AUTORESEARCH_TIME_BUDGET``, as the loop grants it);
-- SB3 PPO and SAC (examples/sb3_compare.py's hyperparameters and budgets) at the same seeds.
+- SB3 PPO and SAC (examples/sb3_compare.py's hyperparameters and budgets) at the same seeds;
+- the long RL runs (issue 60) whose summary is committed under results/rl-baselines/<task>/: each
+  flown at its own seeds from the checkpoints benchmarks/rl_baselines.py left under runs/rl-baselines
+  (refused unless they are the ones the summary scored), with its env steps and rliable's IQM.
 
 Each row is scored by the family's own metric code (its train.py's ``rendezvous_metrics`` /
 ``docking_metrics``) and adds the tail (99th percentile and largest terminal distance over the
@@ -73,6 +76,14 @@ SB3_PROBLEM = {
     "docking": "docking+cbf",
     "docking-constrained": "docking-constrained+cbf",
 }
+# The long RL rows (issue 60), each flown when results/rl-baselines/<task>/<algo>.json is committed.
+RL_ROWS = {
+    "ppo": "PPO (long run)",
+    "residual-ppo": "residual PPO (long run)",
+    "bc-ppo": "cloning-initialised PPO (long run)",
+    "sac": "SAC (long run)",
+}
+RL_WORK = ROOT / "runs" / "rl-baselines"  # where benchmarks/rl_baselines.py keeps each seed's checkpoint
 MPC_STARTS = {"docking-constrained": 32}  # the rest fly every start of the split
 TIMED_STARTS = 8  # starts flown one at a time for the compute column (MPC on constrained docking: 2)
 # Dispersed flights of every row (issue 58): the families' DISPERSIONS (1 sigma) and the same scaled
@@ -237,6 +248,7 @@ class Entry:
     robust: bool = False  # through the robust filter (cwh_envs.robust_cbf), sized by Task.bounds
     sized: bool = False  # a controller sized by Task.bounds itself (the tube MPC), no filter
     navigation: bool = False  # flown on a navigation filter sized by Task.bounds (rollout.fly's navigation)
+    rl: dict | None = None  # an RL row's committed summary (benchmarks/rl_baselines.py): its seeds and budget
 
 
 class OpenLoop:
@@ -379,6 +391,21 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                 f"examples/sb3_compare.py ({SB3_PROBLEM[task.name]})",
             )
         )
+    # the long RL runs (issue 60) committed for this task: their own seeds and budget, flown from the
+    # checkpoints benchmarks/rl_baselines.py left under runs/rl-baselines (the filter in the loop on docking)
+    for algo, name in RL_ROWS.items():
+        rl = rl_summary(ROOT / "results" / "rl-baselines" / task.name / f"{algo}.json")
+        if rl and not rl["smoke"]:  # a smoke summary is plumbing, not a row
+            rows.append(
+                Entry(
+                    name,
+                    "rl",
+                    docking,
+                    lambda seed, rl=rl: trained_rl(task, rl, seed),
+                    f"benchmarks/rl_baselines.py ({SB3_PROBLEM[task.name]})",
+                    rl=rl,
+                )
+            )
     return rows
 
 
@@ -433,6 +460,7 @@ ROW_ORDER = (
     "first GP campaign (BC)",
     "SB3 PPO",
     "SB3 SAC",
+    *RL_ROWS.values(),
 )
 
 
@@ -476,11 +504,19 @@ def trained_bc(task: Task, work: Path, name: str, config: dict, seed: int, time_
     return task.train.load_policy(saved)[0].act
 
 
-def _sb3_compare():
-    spec = importlib.util.spec_from_file_location("sb3_compare", ROOT / "examples" / "sb3_compare.py")
+def _script(name: str, path: Path):
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def _sb3_compare():
+    return _script("sb3_compare", ROOT / "examples" / "sb3_compare.py")
+
+
+def _rl_baselines():
+    return _script("rl_baselines", ROOT / "benchmarks" / "rl_baselines.py")
 
 
 def trained_sb3(task: Task, work: Path, algo: str, seed: int):
@@ -522,6 +558,41 @@ def trained_sb3(task: Task, work: Path, algo: str, seed: int):
     return act
 
 
+def rl_summary(path: Path) -> dict | None:
+    """What a leaderboard row needs of a committed rl_baselines summary: its algorithm, budget, seeds,
+    command, and the env steps each seed's scored checkpoint had trained (None: not committed)."""
+    if not path.exists():
+        return None
+    summary = json.loads(path.read_text(encoding="utf-8"))
+    keys = ("algo", "env_steps", "seeds", "command", "smoke", "residual_scale")
+    rl = {k: summary[k] for k in keys if k in summary}
+    rl["checkpoint_steps"] = {str(r["seed"]): r["curve"][-1]["timesteps"] for r in summary["curves"]}
+    return rl
+
+
+def trained_rl(task: Task, rl: dict, seed: int, work: Path = RL_WORK):
+    """A long RL row's policy at ``seed``: the checkpoint benchmarks/rl_baselines.py left under
+    ``work``, refused unless it is the one the committed summary scored (same env steps)."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    baselines = _rl_baselines()
+    scale = ["--residual-scale", str(rl["residual_scale"])] if "residual_scale" in rl else []
+    run = baselines.Row(baselines.parse_args(["--task", task.name, "--algo", rl["algo"], *scale]))
+    work = work / task.name / rl["algo"] / f"s{seed}"
+    if not (work / "model.zip").exists() or not (work / "vecnormalize.pkl").exists():
+        raise SystemExit(f"{rl['algo']} seed {seed}: no checkpoint in {work}; train it: {rl['command']}")
+    model = run.sb3.ALGOS[run.kind].load(work / "model.zip", device="cpu")
+    if model.num_timesteps != rl["checkpoint_steps"][str(seed)]:
+        raise SystemExit(
+            f"{rl['algo']} seed {seed}: the checkpoint in {work} has trained {model.num_timesteps:,} env "
+            f"steps, the committed row {rl['checkpoint_steps'][str(seed)]:,}: re-run its command "
+            f"({rl['command']}) so that the two agree"
+        )
+    normalizer = VecNormalize.load(str(work / "vecnormalize.pkl"), run.envs(seed, 1))
+    normalizer.training = False
+    return run.policy(model, normalizer)
+
+
 # ------------------------------------------------------------------------------- measurement
 
 
@@ -529,7 +600,7 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
     """Every column but the compute one, for one row: one flight per seed (one in all for a
     deterministic controller), nominal and under the dispersion set."""
     per_seed = []
-    for seed in seeds if entry.kind != "classical" else [None]:
+    for seed in (entry.rl["seeds"] if entry.rl else seeds) if entry.kind != "classical" else [None]:
         policy = entry.make(seed)
         flight = task.fly(policy, entry.cbf, entry.starts, robust=entry.robust, navigation=entry.navigation)
         metrics = task.metrics(flight)
@@ -727,6 +798,12 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
             "metric_per_seed": values,
             "metric_std": float(np.std(values, ddof=1)) if len(values) > 1 else None,
         }
+    if entry.rl:  # the budget, and rliable's summary over the seeds of the metric flown here
+        out |= {
+            "env_steps": entry.rl["env_steps"],
+            "iqm": _rl_baselines().iqm_interval(values),
+            "command": entry.rl["command"],
+        }
     if entry.kind == "bc":
         campaign = (
             family_best_campaign(task.name)
@@ -861,6 +938,11 @@ def markdown(rows: list[dict]) -> str:
                 notes.append(
                     f"one plan per episode, {t['plan_s_median']:.2g} s (median): {fmt(t['mean'])} µs a step "
                     "amortised over the episode"
+                )
+            if r.get("iqm"):
+                ci = r["iqm"]["ci95"]
+                notes.append(
+                    f"{r['env_steps']:,} env steps a seed; IQM {fmt(r['iqm']['iqm'])} [{fmt(ci[0])}, {fmt(ci[1])}]"
                 )
             if r["strict_feasible"] is not None:
                 notes.append(f"strict-feasible {sum(r['strict_feasible'])}/{len(r['strict_feasible'])}")
@@ -1003,8 +1085,11 @@ def main(argv=None) -> None:
             if args.rows and entry.name not in args.rows:
                 continue
             cache = args.work / "rows" / f"{name}-n{len(task.held_out.starts)}" / f"{slug(entry.name)}.json"
+            seeds = entry.rl["seeds"] if entry.rl else args.seeds
             key = {
-                "seeds": args.seeds if entry.kind != "classical" else None,
+                "seeds": seeds if entry.kind != "classical" else None,
+                # an RL row is the checkpoint it flies: a longer run of the same row is a new measurement
+                **({"checkpoint_steps": entry.rl["checkpoint_steps"]} if entry.rl else {}),
                 "config": entry.config,
                 "starts": entry.starts,
                 # only where one is granted: the rows measured before budgets stay cached
@@ -1023,9 +1108,7 @@ def main(argv=None) -> None:
                 cached = {"key": key, "measured": measure(task, entry, args.seeds)}
                 print(f"[fly] {name}: {entry.name}: {time.perf_counter() - started:.0f} s", flush=True)
             if args.retime or "timing" not in cached:
-                cached["timing"] = time_per_step(
-                    task, entry, args.seeds[0] if entry.kind != "classical" else None
-                )
+                cached["timing"] = time_per_step(task, entry, seeds[0] if entry.kind != "classical" else None)
             cache.parent.mkdir(parents=True, exist_ok=True)
             cache.write_text(json.dumps(cached), encoding="utf-8")
             rows.append(row(task, entry, cached["measured"], cached["timing"]))

@@ -56,6 +56,10 @@ def test_every_task_has_every_kind_of_row_with_the_issues_keys():
         assert row["us_per_step"]["p50"] <= row["us_per_step"]["p99"]
         if row["kind"] != "classical":
             assert len(row["metric_per_seed"]) >= 2 and row["metric_std"] is not None
+        if row["kind"] == "rl":  # issue 60: its budget, its seeds and rliable's IQM of what was flown
+            assert row["env_steps"] >= 1_000_000 and len(row["seeds"]) >= 5
+            assert min(row["metric_per_seed"]) <= row["iqm"]["iqm"] <= max(row["metric_per_seed"])
+            assert row["iqm"]["ci95"][0] <= row["iqm"]["iqm"] <= row["iqm"]["ci95"][1]
         assert all(math.isfinite(v) for v in (row["metric"], row["energy_ratio"], row["delta_v_ratio"]))
 
 
@@ -179,3 +183,27 @@ def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs()
     table = board.markdown([row])
     assert "plans: 2 solved cold" in table or "warm-started from the corridor's plan" in table
     assert "one plan per episode" in table and "amortised over the episode" in table
+
+
+@pytest.mark.needs("rl", "families")
+def test_an_rl_row_flies_the_checkpoint_its_summary_scored_and_refuses_another(tmp_path):
+    """A long RL row (issue 60) is flown from the checkpoint benchmarks/rl_baselines.py left: on the
+    sealed starts the leaderboard's flight scores what the committed summary says, to the last digit;
+    a checkpoint trained on past it is refused by name, not flown as the committed row."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import rl_baselines
+
+    work, out = tmp_path / "work", tmp_path / "out"
+    common = ["--task", "docking", "--algo", "ppo", "--seeds", "0", "--eval-every", "128", "--smoke"]
+    rl_baselines.main([*common, "--timesteps", "128", "--work", str(work), "--out", str(out)])
+    board = leaderboard()
+    rl = board.rl_summary(out / "docking" / "ppo.json")
+    assert rl["smoke"] and rl["seeds"] == [0] and rl["checkpoint_steps"]["0"] >= 128
+    task = board.Task.load("docking", None)  # every sealed start, as the summary scored them
+    flight = task.fly(board.trained_rl(task, rl, 0, work), cbf=True)
+    summary = json.loads((out / "docking" / "ppo.json").read_text())
+    assert task.metrics(flight)["score"] == pytest.approx(summary["metric_per_seed"][0], rel=1e-9)
+    assert board.rl_summary(tmp_path / "absent.json") is None
+    rl_baselines.main([*common, "--timesteps", "384", "--work", str(work), "--out", str(tmp_path / "later")])
+    with pytest.raises(SystemExit, match=r"has trained [\d,]+ env steps, the committed row [\d,]+"):
+        board.trained_rl(task, rl, 0, work)
