@@ -2,8 +2,8 @@
 train.py can read.
 
 The family states those sets itself, as a :class:`DataNeeds` built from its own train.py constants
-(so the two cannot disagree), and passes it to :func:`main`: this library never reads a family's
-files. The sets live in the cwh_envs cache ($CWH_ENVS_CACHE, else ~/.cache/cwh_envs). A family's
+(so the two cannot disagree; :func:`import_train` imports it, naming a missing extra), and passes it
+to :func:`main`: this library never reads a family's files. The sets live in the cwh_envs cache ($CWH_ENVS_CACHE, else ~/.cache/cwh_envs). A family's
 report.py loads its own train.py with :func:`load_train`, and says what a saved run scored, split by
 split, with :func:`scored_per_split`.
 """
@@ -23,6 +23,20 @@ from typing import NamedTuple
 import numpy as np
 
 from cwh_envs import datasets, splits
+
+
+def import_train(needs: dict[str, str], extras: str):
+    """A family's prepare.py's own train.py (``import train``: the script's directory is first on
+    sys.path). Where a module it trains with is missing (``needs``: module -> what it is called), the
+    script exits naming the extras that bring it, rather than with a traceback."""
+    try:
+        return importlib.import_module("train")
+    except ModuleNotFoundError as err:
+        if err.name not in needs:
+            raise
+        names = " and ".join(needs.values())
+        missing = "which is not installed" if len(needs) == 1 else "which are not both installed"
+        sys.exit(f"this family trains with {names}, {missing}: pip install 'cwh-autoresearch[{extras}]'")
 
 
 def load_train(family_dir: str | Path):

@@ -101,18 +101,30 @@ def test_a_missing_extra_is_one_line_naming_it(args, blocked, extra, tmp_path):
     assert not (tmp_path / "c" / "proposals.jsonl").exists()  # refused before anything ran
 
 
-def test_a_family_without_torch_fails_its_prepare_check_naming_the_extra(tmp_path):
-    family = tmp_path / "docking"
-    shutil.copytree(
-        ROOT / "families" / "docking", family, ignore=shutil.ignore_patterns("logs", "__pycache__")
-    )
+@pytest.mark.parametrize(
+    ("name", "blocked", "message"),
+    [
+        (
+            "docking",
+            "torch",
+            "this family trains with torch, which is not installed: pip install 'cwh-autoresearch[families]'",
+        ),
+        (  # torch is there, SB3 is not: the message names both and the two extras
+            "docking-rl",
+            "stable_baselines3",
+            "this family trains with torch and stable-baselines3, which are not both installed: "
+            "pip install 'cwh-autoresearch[families,sb3]'",
+        ),
+    ],
+)
+def test_a_family_without_its_extras_fails_its_prepare_check_naming_them(tmp_path, name, blocked, message):
+    family = tmp_path / name
+    shutil.copytree(ROOT / "families" / name, family, ignore=shutil.ignore_patterns("logs", "__pycache__"))
     result = python(
         "import runpy, sys\nsys.argv = ['prepare.py', '--check']\nrunpy.run_path('prepare.py', run_name='__main__')",
-        block=("torch",),
+        block=(blocked,),
         tmp_path=tmp_path,
         cwd=family,
     )
     assert result.returncode == 1
-    assert result.stderr.strip() == (
-        "this family trains with torch, which is not installed: pip install 'cwh-autoresearch[families]'"
-    )
+    assert result.stderr.strip() == message

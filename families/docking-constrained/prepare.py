@@ -9,16 +9,10 @@ cwh_envs.prepare builds and verifies them.
 
 import sys
 
-try:
-    import train  # this directory's train.py: its constants (its run is guarded by __main__)
-except ModuleNotFoundError as err:  # the base install has no torch: say which extra brings it
-    if err.name != "torch":
-        raise
-    sys.exit(
-        "this family trains with torch, which is not installed: pip install 'cwh-autoresearch[families]'"
-    )
+from cwh_envs.prepare import DataNeeds, import_train, main
 
-from cwh_envs.prepare import DataNeeds, main
+# this directory's train.py: its constants (its run is guarded by __main__); the base install has no torch
+train = import_train({"torch": "torch"}, "families")
 
 NEEDS = DataNeeds(
     task=train.TASK,

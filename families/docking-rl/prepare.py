@@ -11,17 +11,10 @@ screened starts its training envs reset from. They are stated here from train.py
 
 import sys
 
-try:
-    import train  # this directory's train.py: its constants (its run is guarded by __main__)
-except ModuleNotFoundError as err:  # the base install has neither: say which extras bring them
-    if err.name not in ("torch", "stable_baselines3"):
-        raise
-    sys.exit(
-        "this family trains with torch and stable-baselines3, which are not both installed: "
-        "pip install 'cwh-autoresearch[families,sb3]'"
-    )
+from cwh_envs.prepare import DataNeeds, import_train, main
 
-from cwh_envs.prepare import DataNeeds, main
+# this directory's train.py: its constants (its run is guarded by __main__); the base install has neither
+train = import_train({"torch": "torch", "stable_baselines3": "stable-baselines3"}, "families,sb3")
 
 NEEDS = DataNeeds(
     task=train.TASK,
