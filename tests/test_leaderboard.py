@@ -60,6 +60,14 @@ def test_every_task_has_every_kind_of_row_with_the_issues_keys():
             assert row["env_steps"] >= 1_000_000 and len(row["seeds"]) >= 5
             assert min(row["metric_per_seed"]) <= row["iqm"]["iqm"] <= max(row["metric_per_seed"])
             assert row["iqm"]["ci95"][0] <= row["iqm"]["iqm"] <= row["iqm"]["ci95"][1]
+            # the row is the committed run's: a longer run committed since must be flown again
+            algo = row["command"].split("--algo ")[1].split()[0]
+            summary = json.loads(
+                (ROOT / "results" / "rl-baselines" / row["task"] / f"{algo}.json").read_text()
+            )
+            assert (summary["env_steps"], summary["seeds"]) == (row["env_steps"], row["seeds"]), row[
+                "controller"
+            ]
         assert all(math.isfinite(v) for v in (row["metric"], row["energy_ratio"], row["delta_v_ratio"]))
 
 
