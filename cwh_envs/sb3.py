@@ -27,6 +27,10 @@ closed-form law, say) that sees the raw observation the agent acted on; the filt
 then acts on that sum, as it would on any action. :func:`residual_policy` is the same composition
 for flying a trained correction (``cwh_envs.rollout.fly``).
 
+**Fine-tuning a cloned policy**: :class:`FixedStatistics` holds VecNormalize's observation statistics
+where they were set (the clone's), so that the policy keeps seeing the inputs it was fitted on while
+reward statistics keep updating: ``normalizer.obs_rms = FixedStatistics.of(mean, var)``.
+
     envs = ResidualVecEnv(VecMonitor(NativeVecEnv("CWHDockKOZ-v1", 64, seed=0)), MinEnergyFeedback(problem), 0.2)
     model = PPO("MlpPolicy", VecNormalize(envs), seed=0).learn(1_000_000)
 
@@ -43,6 +47,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 try:
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
     from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 except ModuleNotFoundError as err:
     raise ModuleNotFoundError(
@@ -207,6 +212,21 @@ class ResidualVecEnv(VecEnvWrapper):
         obs, rewards, dones, infos = self.venv.step_wait()
         self._obs = obs  # after an episode's end, the next episode's first observation (SB3's autoreset)
         return obs, rewards, dones, infos
+
+
+class FixedStatistics(RunningMeanStd):
+    """Observation statistics that VecNormalize does not move: ``update`` is a no-op (module docstring).
+    VecNormalize updates its ``obs_rms`` on every training step; a cloned actor fitted on inputs
+    normalised by fixed statistics would otherwise see its inputs drift under it."""
+
+    @classmethod
+    def of(cls, mean: np.ndarray, var: np.ndarray, count: float) -> FixedStatistics:
+        stats = cls(shape=np.shape(mean))
+        stats.mean, stats.var, stats.count = np.asarray(mean, np.float64), np.asarray(var, np.float64), count
+        return stats
+
+    def update(self, arr: np.ndarray) -> None:  # the statistics stay where they were set
+        return None
 
 
 def _rows(info: dict[str, Any], n: int, keys: frozenset[str] | None = None) -> list[dict[str, Any]]:

@@ -107,3 +107,31 @@ def test_the_iqm_interval_is_the_same_on_every_summary():
     first, again = rl_baselines.iqm_interval(scores), rl_baselines.iqm_interval(scores)
     assert first == again
     assert first["ci95"][0] < first["iqm"] < first["ci95"][1]
+
+
+def test_cloning_initialised_ppo_warms_its_critic_with_the_clone_held_as_it_was_fitted(tmp_path):
+    """bc-ppo: during the critic warm-up the actor is frozen and VecNormalize's observation statistics
+    stay the demonstrations' (FixedStatistics), so the policy after it flies exactly as the clone did;
+    after it, PPO moves the actor. A checkpoint of another warm-up is refused, not resumed."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from cwh_envs.sb3 import FixedStatistics
+
+    common = ["--algo", "bc-ppo", "--seeds", "0", "--eval-every", "128", "--smoke", "--bc-epochs", "1"]
+    result = run(tmp_path, *common, "--timesteps", "256", "--critic-warmup", "128")
+    clone, warmed, tuned = result["curves"][0]["curve"]
+    assert (clone["timesteps"], warmed["timesteps"]) == (0, 128) and tuned["timesteps"] >= 256
+    assert clone["critic_warmup"] == 128
+    assert (warmed["metric"], warmed["success_rate"]) == (clone["metric"], clone["success_rate"])
+    assert tuned["metric"] != clone["metric"]  # the actor learns once the warm-up is over
+    work = tmp_path / "work" / "docking" / "bc-ppo" / "s0"
+    row = rl_baselines.Row(rl_baselines.parse_args(["--task", "docking", "--algo", "bc-ppo", "--smoke"]))
+    stats = VecNormalize.load(str(work / "vecnormalize.pkl"), row.envs(0, 1)).obs_rms
+    assert isinstance(stats, FixedStatistics)
+    before = stats.mean.copy()
+    stats.update(np.ones((4, len(before))))
+    np.testing.assert_array_equal(stats.mean, before)
+    assert PPO.load(work / "model.zip", device="cpu").num_timesteps == tuned["timesteps"]
+    with pytest.raises(SystemExit, match="critic warm-up of 128 env steps, asked for 0"):
+        run(tmp_path, *common, "--timesteps", "384", "--critic-warmup", "0")
