@@ -238,7 +238,7 @@ class Entry:
     """A leaderboard row to measure: ``make(seed)`` returns a policy on observations."""
 
     name: str
-    kind: str  # "classical", "bc" or "sb3"
+    kind: str  # "classical", "bc", "sb3" or "rl" (a long run of benchmarks/rl_baselines.py)
     cbf: bool
     make: Any
     source: str
