@@ -27,12 +27,12 @@ closed-form law, say) that sees the raw observation the agent acted on; the filt
 then acts on that sum, as it would on any action. :func:`residual_policy` is the same composition
 for flying a trained correction (``cwh_envs.rollout.fly``).
 
-**Fine-tuning a cloned policy**: :class:`FixedStatistics` holds VecNormalize's observation statistics
-where they were set (the clone's), so that the policy keeps seeing the inputs it was fitted on while
-reward statistics keep updating: ``normalizer.obs_rms = FixedStatistics.of(mean, var)``.
-
     envs = ResidualVecEnv(VecMonitor(NativeVecEnv("CWHDockKOZ-v1", 64, seed=0)), MinEnergyFeedback(problem), 0.2)
     model = PPO("MlpPolicy", VecNormalize(envs), seed=0).learn(1_000_000)
+
+**Fine-tuning a cloned policy**: :class:`FixedStatistics` holds VecNormalize's observation statistics
+where they were set (the clone's), so that the policy keeps seeing the inputs it was fitted on while
+reward statistics keep updating: ``normalizer.obs_rms = FixedStatistics.of(mean, var, count)``.
 
 Importing this module imports stable_baselines3; ``import cwh_envs`` does not.
 """
