@@ -972,7 +972,8 @@ def markdown(rows: list[dict]) -> str:
 
 
 # The README's table per task (summary): the best learned policy beside MPC and the closed-form law (and
-# the robust filter's rows, on docking); PD and the rest are in results/leaderboard.md.
+# the robust filter's rows, on docking), and the best long RL row; PD and the rest are in
+# results/leaderboard.md.
 SUMMARY_ROWS = ("family best (BC)", "MPC", "closed-form feedback", "routed feedback", "robust CBF")
 SUMMARY_START, SUMMARY_END = "<!-- leaderboard summary: start -->", "<!-- leaderboard summary: end -->"
 
@@ -983,6 +984,9 @@ def summary(rows: list[dict]) -> str:
     lines = []
     for task in dict.fromkeys(r["task"] for r in rows):
         block = [r for r in rows if r["task"] == task and any(k in r["controller"] for k in SUMMARY_ROWS)]
+        trained = [r for r in rows if r["task"] == task and r["kind"] == "rl"]
+        if trained:  # the best long RL row (issue 60); the others are in results/leaderboard.md
+            block.append(min(trained, key=lambda r: r["metric"]))
         block.sort(key=lambda r: r["kind"] == "classical")  # the learned row first, then as ranked
         n = max(r["n_starts"] for r in block)
         lines += [

@@ -126,3 +126,4 @@ def test_the_readmes_leaderboard_is_the_committed_one():
     for task in ("rendezvous", "docking", "docking-constrained"):
         assert f"**{task}**" in block
     assert "family best (BC)" in block and "MPC" in block and "robust CBF" in block
+    assert "(long run)" in block  # the best long RL row of a task that has one (issue 60)
