@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import importlib.util
 import json
 import os
@@ -504,6 +505,7 @@ def trained_bc(task: Task, work: Path, name: str, config: dict, seed: int, time_
     return task.train.load_policy(saved)[0].act
 
 
+@functools.cache  # one module per script: the rows and seeds share it
 def _script(name: str, path: Path):
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
@@ -573,22 +575,19 @@ def rl_summary(path: Path) -> dict | None:
 def trained_rl(task: Task, rl: dict, seed: int, work: Path = RL_WORK):
     """A long RL row's policy at ``seed``: the checkpoint benchmarks/rl_baselines.py left under
     ``work``, refused unless it is the one the committed summary scored (same env steps)."""
-    from stable_baselines3.common.vec_env import VecNormalize
-
     baselines = _rl_baselines()
     scale = ["--residual-scale", str(rl["residual_scale"])] if "residual_scale" in rl else []
     run = baselines.Row(baselines.parse_args(["--task", task.name, "--algo", rl["algo"], *scale]))
     work = work / task.name / rl["algo"] / f"s{seed}"
-    if not (work / "model.zip").exists() or not (work / "vecnormalize.pkl").exists():
+    if not all((work / name).exists() for name in (baselines.MODEL, baselines.STATISTICS)):
         raise SystemExit(f"{rl['algo']} seed {seed}: no checkpoint in {work}; train it: {rl['command']}")
-    model = run.sb3.ALGOS[run.kind].load(work / "model.zip", device="cpu")
+    model, normalizer = run.load(work, run.envs(seed, 1))
     if model.num_timesteps != rl["checkpoint_steps"][str(seed)]:
         raise SystemExit(
             f"{rl['algo']} seed {seed}: the checkpoint in {work} has trained {model.num_timesteps:,} env "
             f"steps, the committed row {rl['checkpoint_steps'][str(seed)]:,}: re-run its command "
             f"({rl['command']}) so that the two agree"
         )
-    normalizer = VecNormalize.load(str(work / "vecnormalize.pkl"), run.envs(seed, 1))
     normalizer.training = False
     return run.policy(model, normalizer)
 

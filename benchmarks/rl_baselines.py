@@ -52,6 +52,7 @@ TASKS = {
 ALGOS = ("ppo", "sac", "residual-ppo", "bc-ppo")
 BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples use 2000 to 50000)
 BOOTSTRAP_SEED = 0
+MODEL, STATISTICS = "model.zip", "vecnormalize.pkl"  # a seed's checkpoint, in its work directory
 METRIC_FLOOR = 1e-9  # the curves are on a log axis: a metric below this is drawn at it (the laws reach ~1e-7)
 
 
@@ -130,6 +131,13 @@ class Row:
             params |= self.sb3.SMOKE[self.kind]
         return params
 
+    def load(self, work: Path, venv):
+        """The checkpoint in ``work``: the model, and VecNormalize's statistics wrapped around ``venv``."""
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        normalizer = VecNormalize.load(str(work / STATISTICS), venv)
+        return self.sb3.ALGOS[self.kind].load(work / MODEL, env=normalizer, device="cpu"), normalizer
+
     def policy(self, model, normalizer):
         """The trained row as a policy on observations (deterministic; the base added back for a residual)."""
         from cwh_envs.sb3 import residual_policy
@@ -197,15 +205,14 @@ def train_seed(row: Row, seed: int) -> dict:
     args = row.args
     work = args.work / args.task / args.algo / f"s{seed}"
     work.mkdir(parents=True, exist_ok=True)
-    curve_path, model_path, stats_path = work / "curve.jsonl", work / "model.zip", work / "vecnormalize.pkl"
+    curve_path, model_path, stats_path = work / "curve.jsonl", work / MODEL, work / STATISTICS
     params = row.params()
     n_envs, normalize = params.pop("n_envs"), params.pop("normalize")
     venv = row.envs(seed, n_envs)
     algo = row.sb3.ALGOS[row.kind]
     points = [json.loads(line) for line in curve_path.read_text().splitlines()] if curve_path.exists() else []
     if model_path.exists() and stats_path.exists():
-        normalizer = VecNormalize.load(str(stats_path), venv)
-        model = algo.load(model_path, env=normalizer, device="cpu")
+        model, normalizer = row.load(work, venv)
         spent = points[-1]["train_seconds"] if points else 0.0
         extra = {}
     else:

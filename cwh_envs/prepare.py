@@ -3,9 +3,9 @@ train.py can read.
 
 The family states those sets itself, as a :class:`DataNeeds` built from its own train.py constants
 (so the two cannot disagree; :func:`import_train` imports it, naming a missing extra), and passes it
-to :func:`main`: this library never reads a family's files. The sets live in the cwh_envs cache ($CWH_ENVS_CACHE, else ~/.cache/cwh_envs). A family's
-report.py loads its own train.py with :func:`load_train`, and says what a saved run scored, split by
-split, with :func:`scored_per_split`.
+to :func:`main`: this library never reads a family's files. The sets live in the cwh_envs cache
+($CWH_ENVS_CACHE, else ~/.cache/cwh_envs). A family's report.py loads its own train.py with
+:func:`load_train`, and says what a saved run scored, split by split, with :func:`scored_per_split`.
 """
 
 from __future__ import annotations

@@ -61,7 +61,7 @@ def test_every_task_has_every_kind_of_row_with_the_issues_keys():
             assert min(row["metric_per_seed"]) <= row["iqm"]["iqm"] <= max(row["metric_per_seed"])
             assert row["iqm"]["ci95"][0] <= row["iqm"]["iqm"] <= row["iqm"]["ci95"][1]
             # the row is the committed run's: a longer run committed since must be flown again
-            algo = row["command"].split("--algo ")[1].split()[0]
+            algo = {name: algo for algo, name in leaderboard().RL_ROWS.items()}[row["controller"]]
             summary = json.loads(
                 (ROOT / "results" / "rl-baselines" / row["task"] / f"{algo}.json").read_text()
             )
