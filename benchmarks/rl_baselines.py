@@ -38,6 +38,7 @@ import importlib.util
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -302,12 +303,15 @@ def iqm_interval(values: list[float]) -> dict:
     state = np.random.get_state()  # noqa: NPY002 (the global generator is what arch reads)
     np.random.seed(BOOTSTRAP_SEED)  # noqa: NPY002
     try:
-        point, interval = rly.get_interval_estimates(
-            scores,
-            lambda x: np.array([rly_metrics.aggregate_iqm(x)]),
-            reps=BOOTSTRAP_REPS,
-            random_state=np.random.RandomState(BOOTSTRAP_SEED),  # the same interval on every re-summary
-        )
+        with warnings.catch_warnings():
+            # arch 7 deprecates the random_state rliable passes it (a FutureWarning each call): theirs to change
+            warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
+            point, interval = rly.get_interval_estimates(
+                scores,
+                lambda x: np.array([rly_metrics.aggregate_iqm(x)]),
+                reps=BOOTSTRAP_REPS,
+                random_state=np.random.RandomState(BOOTSTRAP_SEED),  # the same interval on every re-summary
+            )
     finally:
         np.random.set_state(state)  # noqa: NPY002
     return {
@@ -324,7 +328,7 @@ def plot(curves: list[dict], metric: str, path: Path, title: str) -> None:
         y = [max(p["metric"], METRIC_FLOOR) for p in run["curve"]]
         steps.plot(x, y, marker=".", label=f"seed {run['seed']}")
         seconds.plot([p["train_seconds"] for p in run["curve"]], y, marker=".")
-    steps.set(xlabel="env steps", ylabel=f"{metric} on the search split (lower is better)", yscale="log")
+    steps.set(xlabel="env steps", ylabel=f"{metric}\non the search split (lower is better)", yscale="log")
     seconds.set(xlabel="training wall-clock [s] (evaluation excluded)", yscale="log")
     steps.legend(fontsize="small")
     figure.suptitle(title)
