@@ -145,7 +145,8 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     starts the flight itself says broke each constraint, with the flight's own deepest violation."""
     board = leaderboard()
     task = board.Task.load("docking-constrained", 4)
-    entry, on_filter = [e for e in board.entries(task, ROOT / "runs" / "leaderboard", [1]) if e.robust]
+    rows = board.entries(task, ROOT / "runs" / "leaderboard", [1])
+    entry, on_filter = [e for e in rows if e.robust and e.kind == "classical" and not e.sized]
     assert entry.name == "routed feedback + robust CBF" and not entry.navigation
     measured = board.measure(task, entry, [1])["per_seed"][0]
     assert set(measured["dispersed"]) == {"1sigma", "3sigma"}
@@ -169,15 +170,43 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     assert board.time_per_step(task, on_filter, None)["steps"] == 4 * task.problem.horizon  # 4 starts loaded
 
 
+@pytest.mark.needs("families")
+def test_the_robust_hand_recipe_row_is_its_audits_promoted_recipe_flown_as_train_py_flies_it(monkeypatch):
+    """Issue 58's learned robust row: the recipe the campaign's audit promoted, at the budget the
+    campaign granted, flown through the robust filter on the navigation filter as its config says."""
+    board = leaderboard()
+    task = board.Task.load("docking-constrained", 2)
+    work = ROOT / "runs" / "leaderboard"
+    entry = next(e for e in board.entries(task, work, [1]) if e.name == board.ROBUST_RECIPE)
+    campaign = ROOT / board.ROBUST_RECIPES["docking-constrained"]
+    verify = json.loads((campaign / "audit.json").read_text(encoding="utf-8"))["verify"]
+    promoted = [c for c in verify["candidates"] if c["config_id"] == verify["promoted"]]
+    assert entry.kind == "bc" and entry.config == promoted[0]["config"] and entry.time_budget == 600
+    assert entry.cbf and entry.robust and entry.navigation
+    assert entry.source.startswith(board.ROBUST_RECIPES["docking-constrained"])
+    # A recipe whose filter is sized at another k than the rows' robust filter is refused, by name.
+    source, config = board.AGENT_RECIPES["docking-constrained"]
+    monkeypatch.setitem(
+        board.AGENT_RECIPES, "docking-constrained", (source, {**config, "ROBUST_FILTER_K": 2.0})
+    )
+    with pytest.raises(ValueError, match=r"first GP campaign.*ROBUST_FILTER_K=2"):
+        board.entries(task, work, [1])
+
+
 def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs():
     """The robust MPC's row (issue 58) on two constrained starts: each level keeps the tube MPC's own
     plan counts, the compute column its plan time, and the table says both in words."""
     board = leaderboard()
     task = board.Task.load("docking-constrained", 2)
     sized = [e for e in board.entries(task, ROOT / "runs" / "leaderboard", [1]) if e.sized]
-    assert [e.name for e in sized] == ["tube MPC (robust)", "tube MPC + navigation filter (robust)"]
-    entry = sized[0]
-    assert not entry.cbf
+    assert [e.name for e in sized] == [
+        "tube MPC (robust)",
+        "tube MPC + navigation filter (robust)",
+        "tube MPC + robust CBF + navigation filter (robust)",
+    ]
+    entry, layered = sized[0], sized[2]
+    assert not entry.cbf and not entry.robust
+    assert layered.cbf and layered.robust and layered.navigation  # the layers together, as flight software
     measured = board.measure(task, entry, [1])["per_seed"][0]
     assert sum(measured["plans"].values()) == 2
     for level in ("1sigma", "3sigma"):
