@@ -16,7 +16,9 @@ test split, 1024 screened starts), it flies:
 - behaviour cloning at the family's promoted best (``family.json``) and at the best recipe a
   key-free agent campaign certified (:data:`AGENT_RECIPES`), each trained by the family's own
   train.py at every seed of ``--seeds`` (the family best under the training time budget it was
-  certified under, when its entry names one: ``AUTORESEARCH_TIME_BUDGET``, as the loop grants it);
+  certified under, when its entry names one: ``AUTORESEARCH_TIME_BUDGET``, as the loop grants it),
+  and on constrained docking the robust hand recipe (:data:`ROBUST_RECIPES`: an audit's promoted
+  recipe at its campaign's budget), each flown through the filters its config names;
 - SB3 PPO and SAC (examples/sb3_compare.py's hyperparameters and budgets) at the same seeds;
 - the long RL runs (issue 60) whose summary is committed under results/rl-baselines/<task>/: each
   flown at its own seeds from the checkpoints benchmarks/rl_baselines.py left under runs/rl-baselines
