@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
+from autoresearch.audit.outcome import promoted
 from autoresearch.campaign import Campaign
 from autoresearch.editable import patch
 from autoresearch.execution.runner import TIME_BUDGET_ENV
@@ -443,12 +444,14 @@ ROBUST_RECIPES = {"docking-constrained": "results/agent-levers/docking-constrain
 
 
 def audited_recipe(campaign: str) -> tuple[dict, float | None]:
-    """The promoted recipe of a campaign's audit and the training budget its campaign granted."""
+    """The recipe a campaign's audit promoted (:func:`autoresearch.audit.outcome.promoted`: the pruned
+    one where leave-one-out promoted it) and the training budget its campaign granted."""
     root = ROOT / campaign
-    verify = json.loads((root / "audit.json").read_text(encoding="utf-8"))["verify"]
-    promoted = next(c for c in verify["candidates"] if c["config_id"] == verify["promoted"])
+    found = promoted(json.loads((root / "audit.json").read_text(encoding="utf-8")))
+    if found is None:
+        raise ValueError(f"{campaign}: its audit promoted no recipe")
     budget = json.loads((root / "campaign.json").read_text(encoding="utf-8"))["settings"].get("time_budget")
-    return promoted["config"], budget
+    return found[1]["config"], budget
 
 
 def produced_by(campaign: str) -> str:
