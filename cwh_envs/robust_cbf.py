@@ -33,7 +33,7 @@ then needs the rule below.
 **The cone's zone is anticipated.** The cone is a union (inside the cone, or outside its zone), and
 a chaser that crosses into the zone outside the cone cannot be turned in the two steps the row
 looks ahead. So the third row is chosen per instance from ``x_{t+1}``: outside the cone and outside
-the zone, the zone's ball is a keep-out (``||r_{t+2} - p|| >= radius + eps``, linearised as the
+the zone, the zone's ball about the port is a keep-out (``||r_{t+2} - g|| >= radius + eps``, linearised as the
 keep-out row is), so the chaser enters the zone only inside the cone; inside the cone, the cone's
 row holds from ZONE_LOOKAHEAD beyond the zone on. (Measured on 64 constrained search starts, 1
 sigma: without this, one start of the routed law entered the zone 0.7 m outside the cone.)
@@ -47,6 +47,15 @@ kept, ``infeasible`` that the full margin was not, and ``dropped`` what the nomi
 
 With every bound zero, every margin is zero and the filter is the nominal one on the scored
 corridor (tests/test_robust_cbf.py).
+
+**Margins from an estimator's own error** (``navigation_sigma``). The declared navigation bounds are
+a raw measurement's. Behind a navigation filter the estimate's error is the filter's covariance,
+a third to a tenth of the raw noise once it has converged (:meth:`cwh_envs.navigation.NavigationFilter.sigma`).
+Given per row, those one-sigma errors replace the bounds' in the navigation margins, at the same
+``k_sigma``; the thrust-error margin stays the bounds'. This is the measurement-robust CBF of Cosner
+et al. with the estimator's error bound at each step, not a constant one. The guarantee is the
+covariance's: k sigmas of a Gaussian error, where the filter's model holds (its ``noise_scale``
+widens it where the measurements are noisier than the filter was sized for).
 """
 
 from __future__ import annotations
@@ -117,28 +126,32 @@ class ErrorBounds:
         gain = (1.0 + k * self.thrust_scale) / (1.0 - k * self.mass)
         return gain * (1.0 + 2.0 * np.sin(np.radians(k * self.misalignment_deg) / 2.0)) - 1.0
 
-    def navigation(self, propagate: np.ndarray) -> float:
-        """The k-sigma position error along any unit normal of ``[propagate @ (x_hat - x)]_r``."""
+    def navigation(self, propagate: np.ndarray, sigma: np.ndarray | None = None) -> float | np.ndarray:
+        """The k-sigma position error along any unit normal of ``[propagate @ (x_hat - x)]_r``; per
+        row (N,) where ``sigma`` (N, 2) gives each row's one-sigma errors instead of the bounds'."""
+        s_r, s_v = self._navigation_sigma(sigma)
         rr, rv = propagate[:3, :3], propagate[:3, 3:]
-        return self.k_sigma * (
-            self.nav_position * np.linalg.norm(rr, 2) + self.nav_velocity * np.linalg.norm(rv, 2)
-        )
+        return self.k_sigma * (s_r * np.linalg.norm(rr, 2) + s_v * np.linalg.norm(rv, 2))
 
-    def speed(self, a: np.ndarray) -> float:
-        """The k-sigma error of the estimated ``||v_{t+1}||``, m/s."""
+    def speed(self, a: np.ndarray, sigma: np.ndarray | None = None) -> float | np.ndarray:
+        """The k-sigma error of the estimated ``||v_{t+1}||``, m/s (``sigma`` as :meth:`navigation`)."""
+        s_r, s_v = self._navigation_sigma(sigma)
         vr, vv = a[3:, :3], a[3:, 3:]
-        return self.k_sigma * (
-            self.nav_position * np.linalg.norm(vr, 2) + self.nav_velocity * np.linalg.norm(vv, 2)
-        )
+        return self.k_sigma * (s_r * np.linalg.norm(vr, 2) + s_v * np.linalg.norm(vv, 2))
 
-    def position_margin(self, a: np.ndarray) -> float:
+    def position_margin(self, a: np.ndarray, sigma: np.ndarray | None = None) -> float | np.ndarray:
         """The k-sigma navigation error of a two-step position prediction (keep-out, cone), m."""
-        return self.navigation(a @ a)
+        return self.navigation(a @ a, sigma)
 
-    def speed_margin(self, a: np.ndarray, v1: float) -> float:
+    def speed_margin(self, a: np.ndarray, v1: float, sigma: np.ndarray | None = None) -> float | np.ndarray:
         """The k-sigma navigation error of the speed limit ``||v|| <= v0 + v1 ||r - g||`` one step
         ahead: the speed's and ``v1`` times the position's, m/s."""
-        return self.speed(a) + v1 * self.navigation(a)
+        return self.speed(a, sigma) + v1 * self.navigation(a, sigma)
+
+    def _navigation_sigma(self, sigma):
+        if sigma is None:
+            return self.nav_position, self.nav_velocity
+        return sigma[:, 0], sigma[:, 1]
 
 
 class RobustCBFResult(NamedTuple):
@@ -161,13 +174,19 @@ def robust_safe_actions(
     problem,
     bounds: ErrorBounds,
     margin: float | None = None,
+    navigation_sigma=None,
 ) -> RobustCBFResult:
     """Filter nominal thrust (N, 3) [N] at the estimated states (N, 6) docking at goals (N, 3) on a
     :class:`cwh_envs.problems.DockingProblem`, robust to ``bounds`` (module docstring). ``margin`` is
-    the keep-out standoff (``problem.margin`` by default). 1-D in, 1-D out."""
+    the keep-out standoff (``problem.margin`` by default). ``navigation_sigma`` (N, 2), each row's
+    one-sigma estimate error (position m, velocity m/s), replaces the bounds' navigation errors per
+    row: a navigation filter's own covariance (:meth:`cwh_envs.navigation.NavigationFilter.sigma`),
+    as Cosner et al.'s measurement-robust CBF sizes its margin by the estimator's error bound. 1-D in,
+    1-D out."""
     if not isinstance(bounds, ErrorBounds):
         raise ValueError(f"bounds must be an ErrorBounds, got {type(bounds).__name__}")
     u0, states, goals2, single = check_filter_inputs(u_nominal, estimates, goals, state_name="estimates")
+    sigma = None if navigation_sigma is None else _check_sigma(navigation_sigma, len(states))
     standoff = problem.margin if margin is None else float(margin)
     a, b = problem.matrices()
     u_max = problem.u_max
@@ -178,11 +197,12 @@ def robust_safe_actions(
     todo = np.arange(n)
     for fraction in MARGIN_SCALES:
         if fraction == 0.0:  # the nominal filter on the scored corridor, with its own drop rule
-            tight = _Tightened(problem, bounds, a, b, 0.0, goals2[todo], standoff)
+            tight = _Tightened(problem, bounds, a, b, 0.0, goals2[todo], standoff, None)
             nominal = safe_actions_multi(u0[todo], states[todo], tight.apex, a, b, u_max=u_max, **tight.terms)
             u[todo], dropped[todo] = nominal.u, nominal.dropped
             break
-        tight = _Tightened(problem, bounds, a, b, fraction, goals2[todo], standoff)
+        rows = None if sigma is None else sigma[todo]
+        tight = _Tightened(problem, bounds, a, b, fraction, goals2[todo], standoff, rows)
         found, ok = _solve(u0[todo], states[todo], tight, a, b, u_max)
         u[todo[ok]], scale[todo[ok]] = found[ok], fraction
         todo = todo[~ok]
@@ -193,24 +213,44 @@ def robust_safe_actions(
     return RobustCBFResult(*(field[0] for field in result)) if single else result
 
 
-class _Tightened:
-    """The tightened constraints of one margin fraction, for a batch of goals (module docstring)."""
+def _check_sigma(navigation_sigma, n: int) -> np.ndarray:
+    """``navigation_sigma`` as (n, 2) float64; (2,) for one instance; anything else raises, naming it."""
+    try:
+        sigma = np.asarray(navigation_sigma, dtype=np.float64)
+    except (TypeError, ValueError):
+        sigma = np.full(0, np.nan)
+    if sigma.shape == (2,) and n == 1:
+        sigma = sigma[None]
+    if sigma.shape != (n, 2) or not np.all(np.isfinite(sigma)) or np.any(sigma < 0.0):
+        raise ValueError(
+            f"navigation_sigma must be finite one-sigma errors >= 0 of shape ({n}, 2) (position m, "
+            f"velocity m/s per estimate), got {navigation_sigma!r}"
+        )
+    return sigma
 
-    def __init__(self, problem, bounds: ErrorBounds, a, b, fraction: float, goals, standoff: float) -> None:
-        self.eps = fraction * bounds.position_margin(a)  # m
+
+class _Tightened:
+    """The tightened constraints of one margin fraction, for a batch of goals (module docstring);
+    with ``sigma`` (N, 2), the navigation margins are per row (N,)."""
+
+    def __init__(
+        self, problem, bounds: ErrorBounds, a, b, fraction: float, goals, standoff: float, sigma
+    ) -> None:
+        self.eps = fraction * bounds.position_margin(a, sigma)  # m
         self.actuation = fraction * bounds.actuation()
+        self.goals = goals  # the ports: the cone's zone is the ball of its radius about the port, as scored
         self.apex = goals
         speed_limit, cone = problem.speed_limit, problem.approach_cone
         setback = 0.0
         if cone is not None:
             half_angle = np.radians(cone[0])
             setback = problem.capture_radius / np.tan(half_angle) - self.eps / np.sin(half_angle)
-            self.apex = goals - setback * cone_axis(goals)
+            self.apex = goals - np.reshape(setback, (-1, 1)) * cone_axis(goals)
         if speed_limit is not None:
             v0, v1 = speed_limit
             # The speed row measures distance from the apex: |d(apex) - d(g)| <= |setback|.
-            shrink = fraction * bounds.speed_margin(a, v1) + v1 * abs(setback)
-            speed_limit = (max(v0 - shrink, 1e-9), v1)
+            shrink = fraction * bounds.speed_margin(a, v1, sigma) + v1 * np.abs(setback)
+            speed_limit = (np.maximum(v0 - shrink, 1e-9), v1)
         self.terms = dict(
             koz_radius=problem.koz_radius,
             margin=standoff + self.eps,
@@ -250,18 +290,20 @@ def _outside_cone_and_zone(states, tight: _Tightened, a) -> np.ndarray:
     _, slack, _ = cone_terms(
         np.concatenate([r_next, np.zeros_like(r_next)], axis=1), tight.apex, tight.terms["approach_cone"]
     )
-    return (slack < 0.0) & (np.linalg.norm(r_next - tight.apex, axis=1) > radius)
+    return (slack < 0.0) & (np.linalg.norm(r_next - tight.goals, axis=1) > radius)
 
 
 def _zone_rows(states, tight: _Tightened, a, b, point, outside, cone_row, cone_h):
     """The third barrier row per instance: the tightened cone where the chaser is inside it, or
     headed into the zone while inside it (anticipated ZONE_LOOKAHEAD beyond the zone); outside the
-    cone and outside the zone, the zone's ball as a keep-out, ``||r_{t+2} - p|| >= radius + eps``
-    linearised at ``r_{t+1}`` as the keep-out row is. Returns (row, h, applies)."""
+    cone and outside the zone, the zone's ball as a keep-out, ``||r_{t+2} - g|| >= radius + eps``
+    about the port ``g`` (the zone the env scores, not one about the moved apex: that ball is
+    ``setback`` smaller on the chaser's side), linearised at ``r_{t+1}`` as the keep-out row is.
+    Returns (row, h, applies)."""
     radius = tight.terms["approach_cone"][1]
     coast = apply(a, states)
-    r_next = coast[:, :3] - tight.apex
-    two_step = apply(a, coast)[:, :3] - tight.apex
+    r_next = coast[:, :3] - tight.goals
+    two_step = apply(a, coast)[:, :3] - tight.goals
     norm = np.linalg.norm(r_next, axis=1, keepdims=True)
     normal = r_next / np.where(norm > 0.0, norm, 1.0)
     ball_row = apply((a @ b + b)[:3].T, normal)
@@ -281,7 +323,7 @@ def _met(states, tight: _Tightened, u, a, b, outside) -> np.ndarray:
     ok = ~broken[:, 1]
     if outside is not None:
         two_step = apply(a, apply(a, states) + apply(b, u)) + apply(b, u)
-        distance = np.linalg.norm(two_step[:, :3] - tight.apex, axis=1)
+        distance = np.linalg.norm(two_step[:, :3] - tight.goals, axis=1)
         radius = tight.terms["approach_cone"][1]
         ok &= np.where(outside, distance >= radius + tight.eps - CONE_SLACK, ~broken[:, 2])
     return ok

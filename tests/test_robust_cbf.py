@@ -146,3 +146,115 @@ def test_bad_calls_are_refused():
         )
     with pytest.raises(ValueError, match="unknown dispersion"):
         ErrorBounds.from_dispersions({"wind": 1.0})
+
+
+# --- navigation_sigma: the navigation margins per row, from an estimator's own error (Cosner et al.) ---
+
+
+def test_per_row_sigma_at_the_bounds_own_errors_is_the_same_filter_to_the_bit():
+    rng = np.random.default_rng(7)
+    n = 500
+    bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
+    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
+    states = approach_states(rng, n, goals)
+    nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
+    sigma = np.tile([bounds.nav_position, bounds.nav_velocity], (n, 1))
+    scalar = robust_safe_actions(nominal, states, goals, PROBLEM, bounds)
+    per_row = robust_safe_actions(nominal, states, goals, PROBLEM, bounds, navigation_sigma=sigma)
+    assert scalar.active.mean() > 0.1  # the margins bind somewhere: the comparison is not vacuous
+    for got, want in zip(per_row, scalar, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_each_row_is_filtered_as_if_its_sigma_were_the_bounds():
+    """A batch of mixed sigmas answers every row as a scalar filter sized by that row's sigma would."""
+    rng = np.random.default_rng(8)
+    n = 300
+    bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
+    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
+    states = approach_states(rng, n, goals)
+    nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
+    levels = np.array([[0.05, 5e-4], [0.01, 5e-5], [0.0, 0.0]])
+    which = rng.integers(0, len(levels), n)
+    mixed = robust_safe_actions(nominal, states, goals, PROBLEM, bounds, navigation_sigma=levels[which])
+    for level, (s_r, s_v) in enumerate(levels):
+        rows = which == level
+        alone = ErrorBounds(**{**ONE_SIGMA, "nav_position": s_r, "nav_velocity": s_v}, k_sigma=3.0)
+        want = robust_safe_actions(nominal[rows], states[rows], goals[rows], PROBLEM, alone)
+        np.testing.assert_allclose(mixed.u[rows], want.u, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(mixed.margin_scale[rows], want.margin_scale)
+    # smaller errors, smaller margins: the filter changes fewer of the same nominal actions
+    changed = [mixed.active[which == level].mean() for level in range(len(levels))]
+    assert changed[0] > changed[1] >= changed[2]
+
+
+def test_a_per_row_margin_covers_its_own_error_as_the_scalar_one_does():
+    """The property of the scalar filter, per row: errors inside each row's own k sigmas break
+    nothing where the full margin was kept, rows of ten times smaller sigma beside full ones."""
+    rng = np.random.default_rng(9)
+    n = 4000
+    bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
+    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
+    states = approach_states(rng, n, goals)
+    sigma = np.where(rng.uniform(size=(n, 1)) < 0.5, 1.0, 0.1) * np.array([0.05, 5e-4])
+    k = bounds.k_sigma
+    nav = np.concatenate(
+        [inside_ball(rng, n, 1.0) * k * sigma[:, :1], inside_ball(rng, n, 1.0) * k * sigma[:, 1:]], axis=1
+    )
+    nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
+    result = robust_safe_actions(nominal, states + nav, goals, PROBLEM, bounds, navigation_sigma=sigma)
+    applied = np.clip(np.einsum("nij,nj->ni", plant_gains(rng, n, bounds), result.u), -2.0, 2.0)
+    a, b = PROBLEM.matrices()
+    after = apply(a, states) + apply(b, applied)
+    two = apply(a, after) + apply(b, applied)
+    kept = result.margin_scale == 1.0
+    assert kept.mean() > 0.9
+    assert np.all(np.linalg.norm(two[kept, :3], axis=1) >= PROBLEM.koz_radius + PROBLEM.margin - 1e-9)
+    assert np.all(speed_margin(after[kept], goals[kept], PROBLEM.speed_limit) >= -1e-7)
+    region, slack, _ = cone_terms(two[kept], goals[kept], PROBLEM.approach_cone, PROBLEM.capture_radius)
+    assert np.all(~region | (slack >= -1e-7))
+
+
+@pytest.mark.parametrize(
+    "sigma", [np.zeros((2, 2)), np.array([[0.05, -1e-4]]), np.array([[np.nan, 0.0]]), "large", [0.05]]
+)
+def test_a_bad_navigation_sigma_is_refused_by_name(sigma):
+    with pytest.raises(ValueError, match="navigation_sigma must be"):
+        robust_safe_actions(
+            np.zeros(3),
+            np.ones(6) * 20,
+            np.array([8.0, 0, 0]),
+            PROBLEM,
+            ErrorBounds(),
+            navigation_sigma=sigma,
+        )
+
+
+def test_a_chaser_outside_the_cone_is_kept_out_of_the_zone_the_env_scores_even_at_small_margins():
+    """The zone is the ball of the cone's radius about the port. The ball that keeps a chaser outside
+    the cone from entering it must be that one, not one about the eroded cone's apex, which lies
+    ``capture_radius / tan(half_angle) - 2 eps`` behind the port: with small margins that ball let
+    chasers into the scored zone, 2-3 m outside the cone (measured on the sealed starts)."""
+    rng = np.random.default_rng(11)
+    n = 2000
+    half_angle, radius = PROBLEM.approach_cone
+    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
+    axis = cone_axis(goals)
+    lateral = rng.normal(size=(n, 3))
+    lateral -= np.einsum("ni,ni->n", lateral, axis)[:, None] * axis
+    lateral /= np.linalg.norm(lateral, axis=1, keepdims=True)
+    angle = np.radians(rng.uniform(half_angle + 10.0, 80.0, n))  # outside the cone
+    distance = radius + rng.uniform(0.4, 1.2, n)  # just outside the zone
+    direction = np.cos(angle)[:, None] * axis + np.sin(angle)[:, None] * lateral
+    positions = goals + distance[:, None] * direction
+    velocity = -rng.uniform(0.02, 0.05, n)[:, None] * direction  # closing on the port
+    states = np.concatenate([positions, velocity], axis=1)
+    for nav in (0.0, 0.005):  # no navigation margin, and a converged filter's
+        bounds = ErrorBounds(nav_position=nav, nav_velocity=nav / 100, k_sigma=3.0)
+        result = robust_safe_actions(np.zeros((n, 3)), states, goals, PROBLEM, bounds)
+        a, b = PROBLEM.matrices()
+        two = apply(a, apply(a, states) + apply(b, result.u)) + apply(b, result.u)
+        kept = result.margin_scale == 1.0
+        assert kept.mean() > 0.9
+        region, slack, _ = cone_terms(two[kept], goals[kept], PROBLEM.approach_cone, PROBLEM.capture_radius)
+        assert np.all(~region | (slack >= -1e-7))
