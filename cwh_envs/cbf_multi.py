@@ -97,7 +97,7 @@ def barrier_rows(states, goals, u_nominal, a, b, *, koz_radius, margin, speed_li
         along_r = _unit(offset, distance)
         # f(u) = ||v_{t+1}|| - v0 - v1 ||r_{t+1} - g|| <= 0, linearised at u_nominal: grad^T u <= ...
         grad = apply(b[3:].T, along_v) - v1 * apply(b[:3].T, along_r)
-        excess = speed - (v0 - min(SPEED_SLACK, v0 / 2)) - v1 * distance  # tightened: see SPEED_SLACK
+        excess = speed - (v0 - np.minimum(SPEED_SLACK, v0 / 2)) - v1 * distance  # tightened: see SPEED_SLACK
         g_rows[:, 1] = -grad
         h[:, 1] = excess - np.einsum("ni,ni->n", grad, u_nominal)
         applies[:, 1] = speed > 0.0

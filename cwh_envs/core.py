@@ -144,6 +144,7 @@ def filter_actions(
     margin: float,
     goals: np.ndarray,
     bounds=None,
+    navigation_sigma=None,
 ):
     """Apply the predictive CBF to normalised actions; returns (safe normalised actions, result).
 
@@ -151,10 +152,13 @@ def filter_actions(
     speed limit or an approach cone every barrier goes into one QP,
     :func:`cwh_envs.cbf_multi.safe_actions_multi`, whose result also says what it ``dropped``.
     With ``bounds`` (:class:`cwh_envs.robust_cbf.ErrorBounds`) the robust filter,
-    :func:`cwh_envs.robust_cbf.robust_safe_actions`, answers instead (its result adds ``margin_scale``).
+    :func:`cwh_envs.robust_cbf.robust_safe_actions`, answers instead (its result adds ``margin_scale``),
+    its navigation margins per row from ``navigation_sigma`` (N, 2) where given.
     """
     if bounds is not None:
-        result = robust_safe_actions(actions * problem.u_max, states, goals, problem, bounds, margin)
+        result = robust_safe_actions(
+            actions * problem.u_max, states, goals, problem, bounds, margin, navigation_sigma
+        )
         return np.clip(np.asarray(result.u) / problem.u_max, -1.0, 1.0), result
     a, b = problem.matrices()
     common = dict(koz_radius=problem.koz_radius, margin=margin, u_max=problem.u_max)

@@ -34,6 +34,8 @@ from cwh_envs.dispersions import FILTER_SEES, check_spreads, draw_episode, episo
 from cwh_envs.navigation import NavigationFilter
 from cwh_envs.problems import DockingProblem, RendezvousProblem
 
+CBF_NAVIGATION = ("bounds", "covariance")  # what sizes the robust filter's navigation margins (fly)
+
 Policy = Callable[[np.ndarray], np.ndarray]
 
 
@@ -84,6 +86,7 @@ def fly(
     filter_sees: str = "estimate",
     cbf_bounds=None,
     navigation=None,
+    cbf_navigation: str = "bounds",
 ) -> Flight:
     """Fly ``policy`` from every start (N, 6) at once (docking: to ``goals`` (N, 3)) for H steps.
 
@@ -110,6 +113,12 @@ def fly(
     through the estimated thrust error, ``G_hat^-1 u`` (clipped to the box), so that the plant's
     ``G`` delivers about ``u``. A nominal flight sees no innovation and flies as without it (to
     rounding).
+
+    ``cbf_navigation`` says what the robust filter's navigation margins are sized by: ``"bounds"``,
+    the declared one-sigma errors of ``cbf_bounds`` (a raw measurement's), or ``"covariance"``, each
+    row's navigation filter's own covariance at that step (:meth:`NavigationFilter.sigma`, at
+    ``cbf_bounds.k_sigma``), the estimate's error where the filter has converged; it needs
+    ``navigation`` and ``cbf_bounds``.
     """
     docking = isinstance(problem, DockingProblem)
     if not docking and not isinstance(problem, RendezvousProblem):
@@ -137,6 +146,16 @@ def fly(
         raise ValueError(f"filter_sees must be one of {FILTER_SEES}, got {filter_sees!r}")
     if navigation is not None and not docking:
         raise ValueError("navigation (a navigation filter) is for docking problems")
+    if cbf_navigation not in CBF_NAVIGATION:
+        raise ValueError(f"cbf_navigation must be one of {CBF_NAVIGATION}, got {cbf_navigation!r}")
+    if cbf_navigation == "covariance" and (
+        navigation is None or cbf_bounds is None or filter_sees == "truth"
+    ):
+        raise ValueError(
+            'cbf_navigation="covariance" sizes the robust filter (cbf_bounds) by the navigation '
+            "filter's covariance (navigation): it needs both, and the filter on the estimate "
+            f'(filter_sees="estimate", got {filter_sees!r})'
+        )
     horizon = problem.horizon
     gains = nav = None
     if dispersions is not None:
@@ -167,7 +186,8 @@ def fly(
         actions = check_actions(policy(observed), (n, 3))
         if margin is not None:
             seen = core.states if filter_sees == "truth" else measured
-            actions, result = filter_actions(actions, seen, problem, margin, core.goals, cbf_bounds)
+            sigma = navigator.sigma() if cbf_navigation == "covariance" else None
+            actions, result = filter_actions(actions, seen, problem, margin, core.goals, cbf_bounds, sigma)
             active[:, k], infeasible[:, k] = result.active, result.infeasible
             if dropped is not None:
                 dropped[:, k] = result.dropped

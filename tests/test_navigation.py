@@ -63,6 +63,48 @@ def test_under_three_sigma_dispersions_it_beats_the_raw_measurement_and_learns_t
     assert np.median(miss) < 0.2  # measured 0.06
 
 
+def sigmas_and_scales(spreads: dict, n: int = 64, steps: int = 120):
+    """The filter's sigma and noise_scale at every step of ``flown``-like episodes, and the errors."""
+    a, b = PROBLEM.matrices()
+    draws = [draw_episode(check_spreads(spreads), episode_rng(i), steps) for i in range(n)]
+    gain, nav = np.stack([d.gain for d in draws]), np.stack([d.nav for d in draws])
+    rng = np.random.default_rng(1)
+    x = np.concatenate([rng.uniform(-60, 60, (n, 3)), rng.uniform(-0.05, 0.05, (n, 3))], axis=1)
+    nav_filter = NavigationFilter(PROBLEM, BOUNDS)
+    nav_filter.start(np.ones(n, dtype=bool), x + nav[:, 0])
+    sigmas, scales, errors = [nav_filter.sigma()], [nav_filter.noise_scale()], []
+    for k in range(steps):
+        action = rng.uniform(-0.3, 0.3, (n, 3))
+        x = x @ a.T + np.einsum("nij,nj->ni", gain, action) * PROBLEM.u_max @ b.T
+        errors.append(nav_filter.step(action * PROBLEM.u_max, x + nav[:, k + 1]) - x)
+        sigmas.append(nav_filter.sigma())
+        scales.append(nav_filter.noise_scale())
+    return np.array(sigmas), np.array(scales), np.array(errors)
+
+
+def test_its_sigma_starts_at_the_measurement_noise_and_shrinks_as_it_converges():
+    sigmas, scales, errors = sigmas_and_scales(ONE_SIGMA)
+    np.testing.assert_allclose(sigmas[0], np.tile([0.05, 5e-4], (64, 1)))
+    assert np.all(sigmas[-1] < 0.5 * sigmas[0])  # measured 0.29 and 0.28 of the raw noise at 120 steps
+    # ... and it is the error's size: the late errors' spread along the worst axis is within 25 % of it
+    # (measured 0.96 and 0.98 of it)
+    late = errors[60:]
+    for block, column in ((slice(0, 3), 0), (slice(3, 6), 1)):
+        measured = late[..., block].std(axis=(0, 1)).max()
+        assert 0.75 < measured / sigmas[60:, :, column].mean() < 1.25
+    assert 0.8 < scales[-1].mean() < 1.2  # the measurements are as noisy as the filter was sized for
+
+
+def test_under_three_times_the_noise_its_noise_scale_reads_about_nine_and_sigma_grows_with_it():
+    stress = {**ONE_SIGMA, "nav_position": 0.15, "nav_velocity": 1.5e-3}
+    sigmas, scales, _ = sigmas_and_scales(stress)
+    plain, plain_scales, _ = sigmas_and_scales(ONE_SIGMA)
+    assert 6.0 < np.median(scales[-1]) < 12.0  # a variance ratio: (3 x)^2; measured 8.7
+    assert np.all(plain_scales[-1] < 2.0)
+    ratio = sigmas[-1] / plain[-1]
+    assert np.all((ratio > 2.0) & (ratio < 4.0))  # measured 2.8-3.0
+
+
 def test_it_refuses_bounds_without_navigation_noise():
     with pytest.raises(ValueError, match="nav_position"):
         NavigationFilter(PROBLEM, ErrorBounds(thrust_scale=0.02))
@@ -75,9 +117,9 @@ def test_it_refuses_bounds_without_navigation_noise():
 CONSTRAINED = load_train(ROOT / "families" / "docking-constrained")
 
 
-def constrained_flight(navigation, dispersions=None):
+def constrained_flight(navigation, dispersions=None, cbf_navigation="bounds", n=16):
     problem, one_sigma = CONSTRAINED.PROBLEM, CONSTRAINED.DISPERSIONS
-    starts, goals = splits.shipped_split("docking", problem, "search").first(16)
+    starts, goals = splits.shipped_split("docking", problem, "search").first(n)
     bounds = ErrorBounds.from_dispersions(one_sigma)
     return fly(
         problem,
@@ -88,6 +130,7 @@ def constrained_flight(navigation, dispersions=None):
         cbf_bounds=bounds,
         navigation=bounds if navigation else None,
         dispersions=dispersions,
+        cbf_navigation=cbf_navigation,
     )
 
 
@@ -106,6 +149,23 @@ def test_on_the_filter_the_robust_cbf_keeps_every_constraint_at_three_sigma_wher
     assert filtered.is_success.all()
 
 
+def test_margins_on_the_filters_covariance_keep_every_constraint_at_one_sigma_and_dock_closer():
+    """The robust CBF sized by the navigation filter's own covariance: at 1 sigma, nothing broken,
+    and, the margins shrinking as the filter converges, the chaser ends nearer the port on less thrust
+    than under margins sized for the raw measurement."""
+    one_sigma = CONSTRAINED.DISPERSIONS
+    bounds = constrained_flight(True, one_sigma)
+    covariance = constrained_flight(True, one_sigma, "covariance")
+    for depth in (covariance.keep_out_depth, covariance.speed_depth, covariance.cone_depth):
+        np.testing.assert_array_equal(depth, 0.0)
+    assert covariance.is_success.all()
+    assert (
+        covariance.terminal_distance.mean() < 0.5 * bounds.terminal_distance.mean()
+    )  # measured 0.02 vs 0.35 m
+    energy = [np.sum(flight.thrust**2) for flight in (covariance, bounds)]
+    assert energy[0] < energy[1]
+
+
 def test_fly_refuses_a_navigation_filter_it_cannot_run():
     rendezvous = RendezvousProblem()
     with pytest.raises(ValueError, match="navigation"):
@@ -114,3 +174,24 @@ def test_fly_refuses_a_navigation_filter_it_cannot_run():
     starts, goals = splits.shipped_split("docking", problem, "search").first(1)
     with pytest.raises(ValueError, match="ErrorBounds"):
         fly(problem, WaypointFeedback(problem), starts, goals, navigation=ONE_SIGMA)
+    bounds = ErrorBounds.from_dispersions(CONSTRAINED.DISPERSIONS)
+    law = WaypointFeedback(problem)
+    with pytest.raises(ValueError, match="cbf_navigation must be one of"):
+        fly(
+            problem,
+            law,
+            starts,
+            goals,
+            cbf_margin=0.5,
+            cbf_bounds=bounds,
+            navigation=bounds,
+            cbf_navigation="kf",
+        )
+    for missing in (dict(cbf_bounds=bounds), dict(navigation=bounds)):
+        with pytest.raises(ValueError, match="it needs both"):
+            fly(problem, law, starts, goals, cbf_margin=0.5, cbf_navigation="covariance", **missing)
+    with pytest.raises(ValueError, match='filter_sees="estimate"'):
+        fly(
+            problem, law, starts, goals, cbf_margin=0.5, cbf_bounds=bounds, navigation=bounds,
+            cbf_navigation="covariance", filter_sees="truth",
+        )  # fmt: skip
