@@ -12,7 +12,9 @@ test split, 1024 screened starts), it flies:
   (:class:`cwh_envs.controllers.MinEnergyFeedback`; through the task's CBF filter on docking), on
   constrained docking the same law re-planned through a hand-drawn route of waypoints
   (:class:`cwh_envs.controllers.WaypointFeedback`, through the filter) and the PD law (through the
-  filter on docking): nothing learned;
+  filter on docking); on docking the robust rows (issue 58): the tube MPC alone and on the navigation
+  filter, the law and the tube MPC through the robust CBF with its navigation margins sized by the
+  declared bounds or by the navigation filter's own covariance (``covariance-sized``): nothing learned;
 - behaviour cloning at the family's promoted best (``family.json``) and at the best recipe a
   key-free agent campaign certified (:data:`AGENT_RECIPES`), each trained by the family's own
   train.py at every seed of ``--seeds`` (the family best under the training time budget it was
@@ -220,9 +222,11 @@ class Task:
         scale: float | None = None,
         robust: bool = False,
         navigation: bool = False,
+        cbf_navigation: str = "bounds",
     ):
         """Nominal, or under the dispersions scaled by ``scale`` (the filter on the estimate; with
-        ``navigation``, everything on the navigation filter's estimate, sized by :attr:`bounds`)."""
+        ``navigation``, everything on the navigation filter's estimate, sized by :attr:`bounds`;
+        ``cbf_navigation`` as :func:`cwh_envs.rollout.fly`'s)."""
         held = self.held_out if starts is None else self.held_out.take(starts)
         return fly(
             self.problem,
@@ -234,6 +238,7 @@ class Task:
             dispersions=None if scale is None else {k: scale * v for k, v in self.dispersions.items()},
             dispersion_seed=getattr(self.train, "DISPERSION_SEED", 0),
             navigation=self.bounds if navigation else None,
+            cbf_navigation=cbf_navigation,
         )
 
 
@@ -252,6 +257,9 @@ class Entry:
     robust: bool = False  # through the robust filter (cwh_envs.robust_cbf), sized by Task.bounds
     sized: bool = False  # a controller sized by Task.bounds itself (the tube MPC), no filter
     navigation: bool = False  # flown on a navigation filter sized by Task.bounds (rollout.fly's navigation)
+    # what sizes the robust filter's navigation margins: "bounds" (Task.bounds) or "covariance" (the
+    # navigation filter's own, rollout.fly's cbf_navigation)
+    cbf_navigation: str = "bounds"
     rl: dict | None = None  # an RL row's committed summary (benchmarks/rl_baselines.py): its seeds and budget
 
 
@@ -319,6 +327,18 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     sized=True,
                     navigation=True,
                 ),
+                Entry(  # the same, the robust filter's navigation margins sized by the navigation filter's covariance
+                    "tube MPC + covariance-sized robust CBF + navigation filter (robust)",
+                    "classical",
+                    True,
+                    lambda seed: TubeMPC(problem, task.bounds),
+                    f"cwh_envs.tube_mpc + cwh_envs.robust_cbf (navigation margins from cwh_envs.navigation's "
+                    f"covariance) + cwh_envs.navigation ({bounds_source})",
+                    robust=True,
+                    sized=True,
+                    navigation=True,
+                    cbf_navigation="covariance",
+                ),
             ]
             if docking
             else []
@@ -361,6 +381,17 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     f"cwh_envs.robust_cbf + cwh_envs.navigation ({bounds_source})",
                     robust=True,
                     navigation=True,
+                ),
+                Entry(  # its navigation margins sized by the navigation filter's own covariance
+                    f"{law_name} + covariance-sized robust CBF + navigation filter",
+                    "classical",
+                    True,
+                    law,
+                    f"cwh_envs.robust_cbf (navigation margins from cwh_envs.navigation's covariance) + "
+                    f"cwh_envs.navigation ({bounds_source})",
+                    robust=True,
+                    navigation=True,
+                    cbf_navigation="covariance",
                 ),
             ]
             if docking
@@ -492,12 +523,15 @@ ROW_ORDER = (
     "tube MPC (robust)",
     "tube MPC + navigation filter (robust)",
     "tube MPC + robust CBF + navigation filter (robust)",
+    "tube MPC + covariance-sized robust CBF + navigation filter (robust)",
     "closed-form feedback",
     "routed feedback",
     "closed-form feedback + robust CBF",
     "routed feedback + robust CBF",
     "closed-form feedback + robust CBF + navigation filter",
     "routed feedback + robust CBF + navigation filter",
+    "closed-form feedback + covariance-sized robust CBF + navigation filter",
+    "routed feedback + covariance-sized robust CBF + navigation filter",
     "PD",
     "family best (BC)",
     "robust hand recipe (BC)",
@@ -644,7 +678,9 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
     per_seed = []
     for seed in (entry.rl["seeds"] if entry.rl else seeds) if entry.kind != "classical" else [None]:
         policy = entry.make(seed)
-        flight = task.fly(policy, entry.cbf, entry.starts, robust=entry.robust, navigation=entry.navigation)
+        flight = task.fly(
+            policy, entry.cbf, entry.starts, None, entry.robust, entry.navigation, entry.cbf_navigation
+        )
         metrics = task.metrics(flight)
         result = {
             "seed": seed,
@@ -659,7 +695,15 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
         result["dispersed"] = {}
         for level, scale in DISPERSION_LEVELS.items():
             disturbed = entry.make(seed)
-            dispersed = task.fly(disturbed, entry.cbf, entry.starts, scale, entry.robust, entry.navigation)
+            dispersed = task.fly(
+                disturbed,
+                entry.cbf,
+                entry.starts,
+                scale,
+                entry.robust,
+                entry.navigation,
+                entry.cbf_navigation,
+            )
             result["dispersed"][level] = dispersed_summary(dispersed)
             if isinstance(
                 disturbed, RecedingHorizon
@@ -675,7 +719,7 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
                 flight
                 if n == len(flight.terminal_distance)
                 else task.fly(
-                    entry.make(seed), entry.cbf, n, robust=entry.robust, navigation=entry.navigation
+                    entry.make(seed), entry.cbf, n, None, entry.robust, entry.navigation, entry.cbf_navigation
                 )
             )
             result["subset"] = {"n_starts": n, "metric": task.metrics(first)[task.train.METRIC]}
@@ -751,31 +795,37 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
             cbf_margin=task.problem.margin if entry.cbf else None,
             cbf_bounds=task.bounds if entry.robust else None,
             navigation=task.bounds if entry.navigation else None,
+            cbf_navigation=entry.cbf_navigation,
         )
+        sigmas = [None] * len(calls)  # the navigation filter's, where it sizes the robust filter
         if isinstance(policy, RecedingHorizon):
             seconds = np.array(policy.solve_seconds)
         else:
             seconds = np.array([c[0] for c in calls])
-            if entry.cbf:
-                for k, (_, _, action) in enumerate(calls):
-                    state, goal = flight.states[:, k], flight.goals
-                    started = time.perf_counter()
-                    filter_actions(
-                        np.clip(action, -1.0, 1.0),
-                        state,
-                        task.problem,
-                        task.problem.margin,
-                        goal,
-                        task.bounds if entry.robust else None,
-                    )
-                    seconds[k] += time.perf_counter() - started
         if entry.navigation:  # its update on each step's measurement (nominal: the state) and G_hat^-1 u
             navigator = NavigationFilter(task.problem, task.bounds)
             navigator.start(np.ones(1, dtype=bool), flight.states[:, 0])
-            for k in range(1, len(calls)):
+            for k in range(len(calls)):
                 started = time.perf_counter()
-                navigator.step(flight.thrust[:, k - 1], flight.states[:, k])
-                np.linalg.solve(navigator.thrust_gain(), flight.thrust[:, k, :, None])
+                if k:
+                    navigator.step(flight.thrust[:, k - 1], flight.states[:, k])
+                    np.linalg.solve(navigator.thrust_gain(), flight.thrust[:, k, :, None])
+                if entry.cbf_navigation == "covariance":
+                    sigmas[k] = navigator.sigma()
+                seconds[k] += time.perf_counter() - started
+        if entry.cbf and not isinstance(policy, RecedingHorizon):
+            for k, (_, _, action) in enumerate(calls):
+                state, goal = flight.states[:, k], flight.goals
+                started = time.perf_counter()
+                filter_actions(
+                    np.clip(action, -1.0, 1.0),
+                    state,
+                    task.problem,
+                    task.problem.margin,
+                    goal,
+                    task.bounds if entry.robust else None,
+                    sigmas[k],
+                )
                 seconds[k] += time.perf_counter() - started
         samples.append(seconds)
         if isinstance(policy, TubeMPC):
@@ -870,6 +920,8 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
         }
     if entry.robust or entry.sized:
         out["robust_bounds"] = {"from": "1-sigma DISPERSIONS", "k_sigma": ROBUST_K_SIGMA}
+        if entry.cbf_navigation == "covariance":
+            out["robust_bounds"]["navigation_margins"] = "the navigation filter's covariance"
     if task.docking:
         out |= flight(task)
     return out
@@ -1024,6 +1076,16 @@ SUMMARY_ROWS = (
     "routed feedback",
     "robust CBF",
 )
+
+
+def summarised(controller: str) -> bool:
+    """Whether a row is in the README's summary: those SUMMARY_ROWS name, less the robust filter on the
+    raw measurement where its row on the navigation filter (flight software's view) stands beside it;
+    every row stays in results/leaderboard.md."""
+    raw_robust = "robust CBF" in controller and "navigation filter" not in controller
+    return any(k in controller for k in SUMMARY_ROWS) and not raw_robust
+
+
 SUMMARY_START, SUMMARY_END = "<!-- leaderboard summary: start -->", "<!-- leaderboard summary: end -->"
 
 
@@ -1032,7 +1094,7 @@ def summary(rows: list[dict]) -> str:
     README holds it between SUMMARY_START and SUMMARY_END; a test keeps the two equal)."""
     lines = []
     for task in dict.fromkeys(r["task"] for r in rows):
-        block = [r for r in rows if r["task"] == task and any(k in r["controller"] for k in SUMMARY_ROWS)]
+        block = [r for r in rows if r["task"] == task and summarised(r["controller"])]
         trained = [r for r in rows if r["task"] == task and r["kind"] == "rl"]
         if trained:  # the best long RL row (issue 60); the others are in results/leaderboard.md
             block.append(min(trained, key=lambda r: r["metric"]))
@@ -1151,6 +1213,7 @@ def main(argv=None) -> None:
                 **({"flight": flight(task)} if task.docking else {}),
                 "dispersion_levels": DISPERSION_LEVELS,
                 **({"robust": dataclasses.asdict(task.bounds)} if entry.robust or entry.sized else {}),
+                **({"cbf_navigation": entry.cbf_navigation} if entry.cbf_navigation != "bounds" else {}),
             }
             cached = (
                 json.loads(cache.read_text(encoding="utf-8")) if cache.exists() and not args.fresh else {}

@@ -146,7 +146,7 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     board = leaderboard()
     task = board.Task.load("docking-constrained", 4)
     rows = board.entries(task, ROOT / "runs" / "leaderboard", [1])
-    entry, on_filter = [e for e in rows if e.robust and e.kind == "classical" and not e.sized]
+    entry, on_filter, on_covariance = [e for e in rows if e.robust and e.kind == "classical" and not e.sized]
     assert entry.name == "routed feedback + robust CBF" and not entry.navigation
     measured = board.measure(task, entry, [1])["per_seed"][0]
     assert set(measured["dispersed"]) == {"1sigma", "3sigma"}
@@ -168,6 +168,16 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     on_estimate = task.fly(on_filter.make(None), True, None, 3.0, robust=True, navigation=True)
     assert not np.allclose(on_estimate.states, stressed.states)
     assert board.time_per_step(task, on_filter, None)["steps"] == 4 * task.problem.horizon  # 4 starts loaded
+    # ... and on the navigation filter's covariance: smaller margins once it has converged, so the chaser
+    # flies nearer the port than under the bounds' margins, and the row says what sized them.
+    assert on_covariance.cbf_navigation == "covariance" and on_covariance.navigation
+    close = task.fly(on_covariance.make(None), True, None, None, True, True, "covariance")
+    assert close.terminal_distance.mean() < 0.5 * flown.terminal_distance.mean()
+    measured = board.measure(task, on_covariance, [1])["per_seed"][0]
+    assert measured["metrics"]["mean_terminal_distance"] == pytest.approx(close.terminal_distance.mean())
+    row = board.row(task, on_covariance, {"per_seed": [measured]}, None)
+    assert row["robust_bounds"]["navigation_margins"] == "the navigation filter's covariance"
+    assert board.time_per_step(task, on_covariance, None)["steps"] == 4 * task.problem.horizon
 
 
 @pytest.mark.needs("families")
@@ -203,10 +213,12 @@ def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs()
         "tube MPC (robust)",
         "tube MPC + navigation filter (robust)",
         "tube MPC + robust CBF + navigation filter (robust)",
+        "tube MPC + covariance-sized robust CBF + navigation filter (robust)",
     ]
-    entry, layered = sized[0], sized[2]
+    entry, layered, on_covariance = sized[0], sized[2], sized[3]
     assert not entry.cbf and not entry.robust
     assert layered.cbf and layered.robust and layered.navigation  # the layers together, as flight software
+    assert layered.cbf_navigation == "bounds" and on_covariance.cbf_navigation == "covariance"
     measured = board.measure(task, entry, [1])["per_seed"][0]
     assert sum(measured["plans"].values()) == 2
     for level in ("1sigma", "3sigma"):
