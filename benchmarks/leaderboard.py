@@ -241,6 +241,12 @@ class Task:
             cbf_navigation=cbf_navigation,
         )
 
+    def fly_row(self, entry: Entry, policy, starts: int | None = None, scale: float | None = None):
+        """:meth:`fly` through the filters a row names (its cbf, robust, navigation, cbf_navigation)."""
+        return self.fly(
+            policy, entry.cbf, starts, scale, entry.robust, entry.navigation, entry.cbf_navigation
+        )
+
 
 @dataclass
 class Entry:
@@ -678,9 +684,7 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
     per_seed = []
     for seed in (entry.rl["seeds"] if entry.rl else seeds) if entry.kind != "classical" else [None]:
         policy = entry.make(seed)
-        flight = task.fly(
-            policy, entry.cbf, entry.starts, None, entry.robust, entry.navigation, entry.cbf_navigation
-        )
+        flight = task.fly_row(entry, policy, entry.starts)
         metrics = task.metrics(flight)
         result = {
             "seed": seed,
@@ -695,15 +699,7 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
         result["dispersed"] = {}
         for level, scale in DISPERSION_LEVELS.items():
             disturbed = entry.make(seed)
-            dispersed = task.fly(
-                disturbed,
-                entry.cbf,
-                entry.starts,
-                scale,
-                entry.robust,
-                entry.navigation,
-                entry.cbf_navigation,
-            )
+            dispersed = task.fly_row(entry, disturbed, entry.starts, scale)
             result["dispersed"][level] = dispersed_summary(dispersed)
             if isinstance(
                 disturbed, RecedingHorizon
@@ -715,13 +711,7 @@ def measure(task: Task, entry: Entry, seeds: list[int]) -> dict:
         if entry.kind == "classical":
             n = min(SUBSET, len(flight.terminal_distance))
             # A row that flies no more than SUBSET starts (MPC on constrained docking) is its own subset.
-            first = (
-                flight
-                if n == len(flight.terminal_distance)
-                else task.fly(
-                    entry.make(seed), entry.cbf, n, None, entry.robust, entry.navigation, entry.cbf_navigation
-                )
-            )
+            first = flight if n == len(flight.terminal_distance) else task.fly_row(entry, entry.make(seed), n)
             result["subset"] = {"n_starts": n, "metric": task.metrics(first)[task.train.METRIC]}
         per_seed.append(result)
     return {"per_seed": per_seed}
