@@ -32,6 +32,29 @@ def approach_states(rng, n, goals):
     return np.concatenate([positions, velocity], axis=1)
 
 
+def approach(rng, n):
+    """``n`` ports on the keep-out sphere and chasers on their approach (:func:`approach_states`)."""
+    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
+    return goals, approach_states(rng, n, goals)
+
+
+def assert_nothing_broken_where_kept(rng, states, goals, result, bounds):
+    """The robust filter's promise: the true states under the filtered thrust, through a plant whose
+    errors are drawn within ``bounds``, break no constraint wherever the full margin was kept, and it
+    was kept on most draws (not a vacuous few)."""
+    n = len(states)
+    applied = np.clip(np.einsum("nij,nj->ni", plant_gains(rng, n, bounds), result.u), -2.0, 2.0)
+    a, b = PROBLEM.matrices()
+    after = apply(a, states) + apply(b, applied)
+    two = apply(a, after) + apply(b, applied)
+    kept = result.margin_scale == 1.0
+    assert kept.mean() > 0.9
+    assert np.all(np.linalg.norm(two[kept, :3], axis=1) >= PROBLEM.koz_radius + PROBLEM.margin - 1e-9)
+    assert np.all(speed_margin(after[kept], goals[kept], PROBLEM.speed_limit) >= -1e-7)
+    region, slack, _ = cone_terms(two[kept], goals[kept], PROBLEM.approach_cone, PROBLEM.capture_radius)
+    assert np.all(~region | (slack >= -1e-7))
+
+
 def inside_ball(rng, n, radius):
     v = rng.normal(size=(n, 3))
     return v / np.linalg.norm(v, axis=1, keepdims=True) * (radius * rng.uniform(0, 1, n) ** (1 / 3))[:, None]
@@ -54,23 +77,13 @@ def test_within_the_bounds_no_constraint_breaks_where_the_full_margin_was_kept(s
     rng = np.random.default_rng(seed)
     n = 4000
     bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
-    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
-    states = approach_states(rng, n, goals)
+    goals, states = approach(rng, n)
     # Any navigation error whose component along every normal is within k sigmas: a ball.
     k = bounds.k_sigma
     nav = np.concatenate([inside_ball(rng, n, k * 0.05), inside_ball(rng, n, k * 5e-4)], axis=1)
     nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
     result = robust_safe_actions(nominal, states + nav, goals, PROBLEM, bounds)
-    applied = np.clip(np.einsum("nij,nj->ni", plant_gains(rng, n, bounds), result.u), -2.0, 2.0)
-    a, b = PROBLEM.matrices()
-    after = apply(a, states) + apply(b, applied)
-    two = apply(a, after) + apply(b, applied)
-    kept = result.margin_scale == 1.0
-    assert kept.mean() > 0.9  # the promise covers most draws, not a vacuous few
-    assert np.all(np.linalg.norm(two[kept, :3], axis=1) >= PROBLEM.koz_radius + PROBLEM.margin - 1e-9)
-    assert np.all(speed_margin(after[kept], goals[kept], PROBLEM.speed_limit) >= -1e-7)
-    region, slack, _ = cone_terms(two[kept], goals[kept], PROBLEM.approach_cone, PROBLEM.capture_radius)
-    assert np.all(~region | (slack >= -1e-7))
+    assert_nothing_broken_where_kept(rng, states, goals, result, bounds)
 
 
 def test_the_nominal_filter_under_the_same_draws_breaks_them():
@@ -80,8 +93,7 @@ def test_the_nominal_filter_under_the_same_draws_breaks_them():
     rng = np.random.default_rng(0)
     n = 4000
     bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
-    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
-    states = approach_states(rng, n, goals)
+    goals, states = approach(rng, n)
     nav = np.concatenate([inside_ball(rng, n, 0.15), inside_ball(rng, n, 1.5e-3)], axis=1)
     nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
     a, b = PROBLEM.matrices()
@@ -155,8 +167,7 @@ def test_per_row_sigma_at_the_bounds_own_errors_is_the_same_filter_to_the_bit():
     rng = np.random.default_rng(7)
     n = 500
     bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
-    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
-    states = approach_states(rng, n, goals)
+    goals, states = approach(rng, n)
     nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
     sigma = np.tile([bounds.nav_position, bounds.nav_velocity], (n, 1))
     scalar = robust_safe_actions(nominal, states, goals, PROBLEM, bounds)
@@ -171,8 +182,7 @@ def test_each_row_is_filtered_as_if_its_sigma_were_the_bounds():
     rng = np.random.default_rng(8)
     n = 300
     bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
-    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
-    states = approach_states(rng, n, goals)
+    goals, states = approach(rng, n)
     nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
     levels = np.array([[0.05, 5e-4], [0.01, 5e-5], [0.0, 0.0]])
     which = rng.integers(0, len(levels), n)
@@ -194,8 +204,7 @@ def test_a_per_row_margin_covers_its_own_error_as_the_scalar_one_does():
     rng = np.random.default_rng(9)
     n = 4000
     bounds = ErrorBounds.from_dispersions(ONE_SIGMA, k_sigma=3.0)
-    goals = PROBLEM.goal_radius * cone_axis(rng.normal(size=(n, 3)))
-    states = approach_states(rng, n, goals)
+    goals, states = approach(rng, n)
     sigma = np.where(rng.uniform(size=(n, 1)) < 0.5, 1.0, 0.1) * np.array([0.05, 5e-4])
     k = bounds.k_sigma
     nav = np.concatenate(
@@ -203,16 +212,7 @@ def test_a_per_row_margin_covers_its_own_error_as_the_scalar_one_does():
     )
     nominal = rng.uniform(-1, 1, (n, 3)) * PROBLEM.u_max
     result = robust_safe_actions(nominal, states + nav, goals, PROBLEM, bounds, navigation_sigma=sigma)
-    applied = np.clip(np.einsum("nij,nj->ni", plant_gains(rng, n, bounds), result.u), -2.0, 2.0)
-    a, b = PROBLEM.matrices()
-    after = apply(a, states) + apply(b, applied)
-    two = apply(a, after) + apply(b, applied)
-    kept = result.margin_scale == 1.0
-    assert kept.mean() > 0.9
-    assert np.all(np.linalg.norm(two[kept, :3], axis=1) >= PROBLEM.koz_radius + PROBLEM.margin - 1e-9)
-    assert np.all(speed_margin(after[kept], goals[kept], PROBLEM.speed_limit) >= -1e-7)
-    region, slack, _ = cone_terms(two[kept], goals[kept], PROBLEM.approach_cone, PROBLEM.capture_radius)
-    assert np.all(~region | (slack >= -1e-7))
+    assert_nothing_broken_where_kept(rng, states, goals, result, bounds)
 
 
 @pytest.mark.parametrize(
