@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -52,6 +53,11 @@ def parse_args(argv=None) -> argparse.Namespace:
         nargs="+",
         default=None,
         help="fly only the rows named so (prefixes); keep the rest from the JSON",
+    )
+    parser.add_argument(
+        "--retime",
+        action="store_true",
+        help="measure only the µs column of the rows named by --rows again (run alone); keep their flights",
     )
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "robust-safety")
     return parser.parse_args(argv)
@@ -92,6 +98,23 @@ def rows(problem, bounds: ErrorBounds, mpc_starts: int) -> list[dict]:
             name=f"tube MPC + robust CBF + navigation filter (1σ bounds, k={bounds.k_sigma:g})",
             make=lambda: TubeMPC(problem, bounds),
             fly=dict(cbf_margin=problem.margin, cbf_bounds=bounds, navigation=bounds),
+        ),
+    ]
+    # The robust CBF's navigation margins sized by the navigation filter's own covariance (a
+    # measurement-robust CBF on the estimator's error at each step; rollout.fly's cbf_navigation).
+    covariance = dict(
+        cbf_margin=problem.margin, cbf_bounds=bounds, navigation=bounds, cbf_navigation="covariance"
+    )
+    out += [
+        dict(
+            name=f"{label} + covariance-sized robust CBF + navigation filter (k={bounds.k_sigma:g})",
+            make=lambda: law(problem),
+            fly=covariance,
+        ),
+        dict(
+            name=f"tube MPC + covariance-sized robust CBF + navigation filter (1σ bounds, k={bounds.k_sigma:g})",
+            make=lambda: TubeMPC(problem, bounds),
+            fly=covariance,
         ),
     ]
     if mpc_starts:
@@ -180,6 +203,15 @@ def time_per_step(problem, row: dict, starts, goals) -> float:
     return float(np.median(times))
 
 
+def retimed_note(results: list[dict]) -> list[str]:
+    """The line saying which rows' µs column a ``--retime`` measured again, and by which command."""
+    by: dict[str, list[str]] = {}
+    for r in results:
+        if "retimed_by" in r:
+            by.setdefault(r["retimed_by"], []).append(r["controller"])
+    return [f"µs/step of {', '.join(names)} measured again, alone, by `{c}`." for c, names in by.items()]
+
+
 def markdown(task: str, results: list[dict]) -> str:
     commands = sorted({r["command"] for r in results})
     lines = [
@@ -189,6 +221,7 @@ def markdown(task: str, results: list[dict]) -> str:
         "row's command in the JSON). The filter and MPC act on the navigation estimate; the env",
         "scores the true state. Dispersions: the families' `DISPERSIONS` (1σ) and the same ×3 (3σ).",
         "Fuel: energy over the shipped expert energy of the same start (nominal flight).",
+        *retimed_note(results),
         "",
         "| controller | starts | nominal success | fuel median / p99 / worst | 1σ success | 1σ starts breaking k/s/c | 1σ deepest k m / s m/s / c m | 3σ success | 3σ starts breaking k/s/c | 3σ deepest k / s / c | µs/step |",
         "|---|---:|---:|---|---:|---|---|---:|---|---|---:|",
@@ -248,25 +281,44 @@ def main(argv=None) -> None:
     command = ("python benchmarks/robust_safety.py " + " ".join(given)).strip()
     path = args.out / f"{args.task}.json"
     kept = {}
-    if args.rows and path.exists():  # the rows not flown now, as measured by their own commands
+    if path.exists() and (
+        args.rows or args.retime
+    ):  # the rows not flown now, as their own commands measured them
         before = json.loads(path.read_text(encoding="utf-8"))
         kept = {r["controller"]: {"command": before["command"], **r} for r in before["rows"]}
-    results = []
-    for row in rows(problem, bounds, args.mpc_starts):
-        if args.rows and not any(row["name"].startswith(prefix) for prefix in args.rows):
-            if row["name"] in kept:
-                results.append(kept[row["name"]])
-            continue
+    if args.retime and not args.rows:
+        raise SystemExit("--retime needs --rows: the rows whose µs column to measure again")
+    table = rows(problem, bounds, args.mpc_starts)
+    named = [r for r in table if not args.rows or any(r["name"].startswith(p) for p in args.rows)]
+    if args.retime and (missing := [r["name"] for r in named if r["name"] not in kept]):
+        raise SystemExit(f"--retime keeps flights it has: no measured row {missing} in {path}")
+    done = dict(kept)
+    for row in named:
         began = time.perf_counter()
-        results.append(
-            {**measure(problem, one_sigma, row, starts, goals, split.energy[:n]), "command": command}
-        )
+        if args.retime:
+            n_row = kept[row["name"]]["starts"]
+            us = time_per_step(problem, row, starts[:n_row], goals[:n_row])
+            done[row["name"]] = {**kept[row["name"]], "us_per_step": us, "retimed_by": command}
+        else:
+            measured = measure(problem, one_sigma, row, starts, goals, split.energy[:n])
+            done[row["name"]] = {**measured, "command": command}
         print(f"{row['name']}: {time.perf_counter() - began:.0f} s", flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{args.task}.md").write_text(markdown(args.task, results), encoding="utf-8")
-    payload = {"task": args.task, "split": split.label, "command": command, "rows": results}
-    path.write_text(json.dumps(payload, indent=1) + "\n", encoding="utf-8")
-    print(markdown(args.task, results))
+        # Written after every row, each file replaced whole: hours of flights survive a stop.
+        results = [done[r["name"]] for r in table if r["name"] in done]
+        write(args.out, args.task, split.label, command, results)
+    print(markdown(args.task, [done[r["name"]] for r in table if r["name"] in done]))
+
+
+def write(out: Path, task: str, label: str, command: str, results: list[dict]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    payload = {"task": task, "split": label, "command": command, "rows": results}
+    for name, text in (
+        (f"{task}.md", markdown(task, results)),
+        (f"{task}.json", json.dumps(payload, indent=1) + "\n"),
+    ):
+        partial = out / (name + ".partial")
+        partial.write_text(text, encoding="utf-8")
+        os.replace(partial, out / name)
 
 
 if __name__ == "__main__":

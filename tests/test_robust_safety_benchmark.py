@@ -27,6 +27,8 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
         "tube MPC (1σ bounds, k=3)",
         "tube MPC + navigation filter (1σ bounds, k=3)",
         "tube MPC + robust CBF + navigation filter (1σ bounds, k=3)",
+        "routed law + covariance-sized robust CBF + navigation filter (k=3)",
+        "tube MPC + covariance-sized robust CBF + navigation filter (1σ bounds, k=3)",
     ]
     for row in payload["rows"]:
         assert row["starts"] == 3 and row["us_per_step"] > 0
@@ -36,10 +38,10 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
     # Without dispersions, the nominal and the truth-fed filter are one flight.
     assert payload["rows"][0]["nominal"] == payload["rows"][1]["nominal"]
     table = (tmp_path / "docking-constrained.md").read_text()
-    assert "--starts 3" in table and table.count("| routed law") == 4
+    assert "--starts 3" in table and table.count("| routed law") == 5
     # On the navigation filter a nominal flight has no innovation: the robust CBF flies as on the state.
     assert payload["rows"][3]["nominal"] == payload["rows"][2]["nominal"]
-    for tube in payload["rows"][4:]:
+    for tube in payload["rows"][4:7] + payload["rows"][8:]:
         for level in ("nominal", "1σ", "3σ"):  # one plan per start, at every level
             assert sum(tube[level]["plans"].values()) == 3
     assert "Tube MPC plans, one per episode" in table
@@ -53,3 +55,23 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
     assert again["rows"][0] == payload["rows"][0]
     assert again["rows"][1]["command"].endswith("--rows routed law + CBF fed")
     assert again["rows"][1]["1σ"] == payload["rows"][1]["1σ"]  # the same flight, flown again
+
+    # --retime measures only the named rows' µs column again; their flights stay, and the table says so.
+    robust_safety.main(["--starts", "3", "--out", str(tmp_path), "--rows", "tube MPC (1σ", "--retime"])
+    retimed = json.loads((tmp_path / "docking-constrained.json").read_text())
+    tube = retimed["rows"][4]
+    assert tube["retimed_by"].endswith("--retime") and tube["command"] == again["rows"][4]["command"]
+    assert {k: v for k, v in tube.items() if k not in ("us_per_step", "retimed_by")} == {
+        k: v for k, v in again["rows"][4].items() if k != "us_per_step"
+    }
+    assert [row for i, row in enumerate(retimed["rows"]) if i != 4] == [
+        row for i, row in enumerate(again["rows"]) if i != 4
+    ]
+    assert (
+        "µs/step of tube MPC (1σ bounds, k=3) measured again, alone"
+        in (tmp_path / "docking-constrained.md").read_text()
+    )
+    with pytest.raises(SystemExit, match="--retime needs --rows"):
+        robust_safety.main(["--starts", "3", "--out", str(tmp_path), "--retime"])
+    with pytest.raises(SystemExit, match="no measured row"):
+        robust_safety.main(["--starts", "3", "--out", str(tmp_path / "empty"), "--rows", "tube", "--retime"])
