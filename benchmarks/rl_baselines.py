@@ -53,6 +53,7 @@ TASKS = {
 ALGOS = ("ppo", "sac", "residual-ppo", "bc-ppo")
 BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples use 2000 to 50000)
 BOOTSTRAP_SEED = 0
+RECIPE_KEYS = ("critic_warmup", "reward", "log_std_init")  # recipe()'s, in a curve's first point
 MODEL, STATISTICS = "model.zip", "vecnormalize.pkl"  # a seed's checkpoint, in its work directory
 METRIC_FLOOR = 1e-9  # the curves are on a log axis: a metric below this is drawn at it (the laws reach ~1e-7)
 
@@ -72,6 +73,19 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=100_000,
         help="bc-ppo: env steps that train the value function alone, the cloned actor frozen",
     )
+    parser.add_argument(
+        "--reward",
+        nargs="+",
+        default=[],
+        metavar="NAME=VALUE",
+        help="the env's reward weights where not its defaults (its keyword arguments, e.g. terminal_weight=10)",
+    )
+    parser.add_argument(
+        "--log-std-init", type=float, default=None, help="the policy's initial log std (the zoo's: -2)"
+    )
+    parser.add_argument(
+        "--tag", default=None, help="a recipe's name beside the algo's: work and results under <algo>-<tag>"
+    )
     parser.add_argument("--work", type=Path, default=ROOT / "runs" / "rl-baselines")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "rl-baselines")
     parser.add_argument("--smoke", action="store_true", help="2,048 steps and small rollouts: plumbing only")
@@ -80,8 +94,37 @@ def parse_args(argv=None) -> argparse.Namespace:
         args.timesteps = min(args.timesteps, 2_048)
     if args.timesteps < 1:
         parser.error("--timesteps must be >= 1")
+    args.reward = _weights(parser, args.reward)
+    if args.tag is not None and not args.tag.replace("-", "").isalnum():
+        parser.error(f"--tag must be letters, digits and '-', got {args.tag!r}")
+    args.label = args.algo if args.tag is None else f"{args.algo}-{args.tag}"
     args.eval_every = args.eval_every or max(1, args.timesteps // 10)
     return args
+
+
+def _weights(parser, pairs: list[str]) -> dict:
+    """``--reward``'s NAME=VALUE pairs as floats (the env checks the names and signs: a clear error)."""
+    weights = {}
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        try:
+            weights[name] = float(value)
+        except ValueError:
+            sep = ""
+        if not (sep and name):
+            parser.error(f"--reward takes NAME=VALUE pairs with a number, got {pair!r}")
+    return weights
+
+
+def recipe(args: argparse.Namespace) -> dict:
+    """What a seed's checkpoint was trained with beyond the algo's defaults; a resumed run must ask
+    for the same (:func:`train_seed`)."""
+    out = {"critic_warmup": args.critic_warmup} if args.algo == "bc-ppo" and args.critic_warmup else {}
+    if args.reward:
+        out["reward"] = args.reward
+    if args.log_std_init is not None:
+        out["log_std_init"] = args.log_std_init
+    return out
 
 
 def _sb3_compare():
@@ -100,6 +143,19 @@ class Row:
         self.problem_spec = {"name": self.name, **self.sb3.PROBLEMS[self.name]}
         self.family = self.sb3.load_family(args.task)
         self.kind = "sac" if args.algo == "sac" else "ppo"
+        self._check_reward(args.reward)
+
+    def _check_reward(self, reward: dict) -> None:
+        """Only the env's reward weights: its other keyword arguments would change the problem."""
+        import dataclasses
+
+        from cwh_envs.core import DockingReward, RendezvousReward
+
+        weights = DockingReward if self.family.TASK == "docking" else RendezvousReward
+        names = {f.name for f in dataclasses.fields(weights)}
+        if unknown := sorted(set(reward) - names):
+            raise ValueError(f"--reward: {unknown} are not reward weights of the env; it has {sorted(names)}")
+        weights(**reward)  # its own check of each value (finite, >= 0)
 
     def base(self):
         """The law the residual corrects: the routed law where the problem has a cone, else the
@@ -121,7 +177,7 @@ class Row:
 
         pool = self.sb3.SMOKE_POOL if self.args.smoke else self.sb3.START_POOL
         namespace = argparse.Namespace(start_pool=pool, vec_env="native", seed=seed)
-        venv = self.sb3.training_envs(self.problem_spec, self.family, n_envs, namespace)
+        venv = self.sb3.training_envs(self.problem_spec, self.family, n_envs, namespace, self.args.reward)
         if self.args.algo == "residual-ppo":
             venv = ResidualVecEnv(venv, self.base(), self.args.residual_scale)
         return venv
@@ -130,6 +186,8 @@ class Row:
         params = dict(self.sb3.HYPERPARAMS[self.kind][self.problem_spec["family"]])
         if self.args.smoke:
             params |= self.sb3.SMOKE[self.kind]
+        if self.args.log_std_init is not None:
+            params["policy_kwargs"] = {**params["policy_kwargs"], "log_std_init": self.args.log_std_init}
         return params
 
     def load(self, work: Path, venv):
@@ -204,7 +262,7 @@ def train_seed(row: Row, seed: int) -> dict:
     from stable_baselines3.common.vec_env import VecNormalize
 
     args = row.args
-    work = args.work / args.task / args.algo / f"s{seed}"
+    work = args.work / args.task / args.label / f"s{seed}"
     work.mkdir(parents=True, exist_ok=True)
     curve_path, model_path, stats_path = work / "curve.jsonl", work / MODEL, work / STATISTICS
     params = row.params()
@@ -212,26 +270,24 @@ def train_seed(row: Row, seed: int) -> dict:
     venv = row.envs(seed, n_envs)
     algo = row.sb3.ALGOS[row.kind]
     points = [json.loads(line) for line in curve_path.read_text().splitlines()] if curve_path.exists() else []
+    extra = recipe(args)
+    if points and (trained := {k: points[0][k] for k in RECIPE_KEYS if k in points[0]}) != extra:
+        raise SystemExit(
+            f"{work}: trained with {trained or 'the defaults'}, asked for {extra or 'the defaults'}: "
+            "remove the directory to train it again, or ask for the same"
+        )
     if model_path.exists() and stats_path.exists():
         model, normalizer = row.load(work, venv)
         spent = points[-1]["train_seconds"] if points else 0.0
-        extra = {}
     else:
         normalizer = VecNormalize(venv, gamma=params["gamma"], **normalize)
         model = algo("MlpPolicy", normalizer, seed=seed, device="cpu", **params)
         spent, points = 0.0, []
-        extra = {}
         if args.algo == "bc-ppo":
-            extra = clone_into(model, normalizer, row.family, args.bc_epochs, seed)
-            extra["critic_warmup"] = args.critic_warmup
+            extra = {**clone_into(model, normalizer, row.family, args.bc_epochs, seed), **extra}
         if args.algo == "residual-ppo":
             zero_residual(model)
     warmup = args.critic_warmup if args.algo == "bc-ppo" else 0
-    if points and points[0].get("critic_warmup", 0) != warmup:  # a checkpoint of another recipe
-        raise SystemExit(
-            f"{work}: trained with a critic warm-up of {points[0].get('critic_warmup', 0):,} env steps, "
-            f"asked for {warmup:,}: remove the directory to train it again, or ask for the same"
-        )
     evaluate = row.sb3.EvalSet(row.family, row.problem_spec["cbf"], dispersed=False)
     while model.num_timesteps < args.timesteps or not points:
         # the first point is the policy before learning (the base law, the clone): where RL starts
@@ -263,7 +319,7 @@ def train_seed(row: Row, seed: int) -> dict:
             log.write(json.dumps(point) + "\n")
         points.append(point)
         print(
-            f"[{args.task} {args.algo} s{seed}] {point['timesteps']:,} steps, {spent:.0f} s: "
+            f"[{args.task} {args.label} s{seed}] {point['timesteps']:,} steps, {spent:.0f} s: "
             f"{row.family.METRIC} {point['metric']:.4g}, success {point['success_rate']:.1%}",
             flush=True,
         )
@@ -360,6 +416,8 @@ def main(argv=None) -> None:
         },
         "train_seconds_per_seed": [run["curve"][-1]["train_seconds"] for run in runs],
         **({"residual_scale": args.residual_scale} if args.algo == "residual-ppo" else {}),
+        **({"tag": args.tag} if args.tag else {}),
+        **{k: v for k, v in recipe(args).items() if k != "critic_warmup"},
         "smoke": args.smoke,
         "command": "python benchmarks/rl_baselines.py " + " ".join(sys.argv[1:] if argv is None else argv),
     }
@@ -367,8 +425,8 @@ def main(argv=None) -> None:
         summary["iqm"] = iqm_interval(summary["metric_per_seed"])
     out = args.out / args.task
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"{args.algo}.json").write_text(json.dumps({**summary, "curves": runs}, indent=1) + "\n")
-    plot(runs, metric, out / f"{args.algo}_curves.png", f"{args.task}: {args.algo}, {len(runs)} seeds")
+    (out / f"{args.label}.json").write_text(json.dumps({**summary, "curves": runs}, indent=1) + "\n")
+    plot(runs, metric, out / f"{args.label}_curves.png", f"{args.task}: {args.label}, {len(runs)} seeds")
     print(json.dumps(summary, indent=1))
 
 

@@ -333,10 +333,11 @@ def train_sb3(algo: str, problem: dict, family, evaluate: EvalSet, args) -> dict
     }
 
 
-def training_envs(problem: dict, family, n_envs: int, args):
+def training_envs(problem: dict, family, n_envs: int, args, reward: dict | None = None):
     """The monitored SB3 VecEnv of ``n_envs`` training envs; with the CBF for docking+cbf (the
-    family's margin, as CBFSafetyFilter's default)."""
-    pool = {"start_pool": args.start_pool} if args.start_pool else {}
+    family's margin, as CBFSafetyFilter's default); ``reward``, the env's reward weights where they
+    are not its defaults (keyword arguments of the env, e.g. ``terminal_weight``)."""
+    options = ({"start_pool": args.start_pool} if args.start_pool else {}) | (reward or {})
     limits = {
         k: getattr(family.PROBLEM, k)
         for k in ("speed_limit", "approach_cone")
@@ -348,13 +349,13 @@ def training_envs(problem: dict, family, n_envs: int, args):
             problem["env_id"],
             n_envs=n_envs,
             seed=args.seed,
-            env_kwargs={**pool, **limits},
+            env_kwargs={**options, **limits},
             wrapper_class=wrapper,
         )
     cbf = {"cbf_margin": family.PROBLEM.margin} if problem["cbf"] else {}
     # SB3's algorithms read only is_success (and the terminal observation) from the infos.
     envs = NativeVecEnv(
-        problem["env_id"], n_envs, seed=args.seed, info_keys=("is_success",), **pool, **cbf, **limits
+        problem["env_id"], n_envs, seed=args.seed, info_keys=("is_success",), **options, **cbf, **limits
     )
     return VecMonitor(envs)
 

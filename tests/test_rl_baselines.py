@@ -20,7 +20,8 @@ def run(tmp_path, *args):
     rl_baselines.main(
         ["--task", "docking", "--work", str(tmp_path / "work"), "--out", str(tmp_path / "out"), *args]
     )
-    return json.loads((tmp_path / "out" / "docking" / f"{args[args.index('--algo') + 1]}.json").read_text())
+    label = args[args.index("--algo") + 1] + (f"-{args[args.index('--tag') + 1]}" if "--tag" in args else "")
+    return json.loads((tmp_path / "out" / "docking" / f"{label}.json").read_text())
 
 
 def test_two_seeds_give_per_seed_sealed_scores_an_iqm_inside_them_and_curves(tmp_path):
@@ -71,11 +72,55 @@ def test_residual_ppo_flies_the_law_plus_its_bounded_correction(tmp_path):
     np.testing.assert_allclose(policy(obs), np.clip(law(obs) + 0.1, -1, 1))
 
 
-def test_bad_arguments_are_refused():
-    with pytest.raises(SystemExit):
-        rl_baselines.parse_args(["--task", "docking", "--algo", "a2c"])
-    with pytest.raises(SystemExit):
-        rl_baselines.parse_args(["--task", "docking", "--algo", "ppo", "--timesteps", "0"])
+def test_bad_arguments_are_refused(capsys):
+    for bad, named in (
+        (["--algo", "a2c"], "a2c"),
+        (["--algo", "ppo", "--timesteps", "0"], "--timesteps"),
+        (["--algo", "ppo", "--reward", "terminal_weight"], "'terminal_weight'"),
+        (["--algo", "ppo", "--reward", "terminal_weight=ten"], "'terminal_weight=ten'"),
+        (["--algo", "ppo", "--tag", "a/b"], "--tag"),
+    ):
+        with pytest.raises(SystemExit):
+            rl_baselines.parse_args(["--task", "docking", *bad])
+        assert named in capsys.readouterr().err
+    # A weight the env does not have is the env's clear error, naming it and the weights it has.
+    args = rl_baselines.parse_args(
+        ["--task", "docking", "--algo", "ppo", "--smoke", "--reward", "precision=1"]
+    )
+    with pytest.raises(ValueError, match="precision"):
+        rl_baselines.Row(args).envs(0, 1)
+
+
+def test_a_tagged_recipe_trains_with_its_reward_weights_and_log_std_apart_and_is_resumed_only_as_asked(
+    tmp_path,
+):
+    """--reward reaches the training env, --log-std-init the policy; the row is kept under its tag
+    beside the algo's defaults, records its recipe, and a checkpoint resumed with another is refused."""
+    from stable_baselines3 import PPO
+
+    recipe = ["--reward", "terminal_weight=5", "effort_weight=0", "--log-std-init", "-4", "--tag", "precise"]
+    common = ["--algo", "residual-ppo", "--seeds", "0", "--eval-every", "128", "--smoke"]
+    result = run(tmp_path, *common, "--timesteps", "128", *recipe)
+    assert result["tag"] == "precise" and result["log_std_init"] == -4.0
+    assert result["reward"] == {"terminal_weight": 5.0, "effort_weight": 0.0}
+    first = result["curves"][0]["curve"][0]
+    assert first["reward"] == result["reward"] and first["log_std_init"] == -4.0
+    work = tmp_path / "work" / "docking" / "residual-ppo-precise" / "s0"
+    model = PPO.load(work / "model.zip", device="cpu")
+    assert model.policy.log_std.detach().numpy() == pytest.approx(
+        -4.0, abs=0.05
+    )  # 128 steps move it a little
+    args = rl_baselines.parse_args(["--task", "docking", "--algo", "residual-ppo", "--smoke", *recipe])
+    env = rl_baselines.Row(args).envs(0, 1)
+    while hasattr(env, "venv"):
+        env = env.venv
+    weights = env.env.unwrapped.reward_weights
+    assert (weights.terminal_weight, weights.effort_weight, weights.success_bonus) == (5.0, 0.0, 10.0)
+    assert not (tmp_path / "work" / "docking" / "residual-ppo").exists()  # the defaults' row untouched
+    with pytest.raises(SystemExit, match="asked for the defaults"):
+        run(tmp_path, *common, "--timesteps", "256", "--tag", "precise")
+    again = run(tmp_path, *common, "--timesteps", "256", *recipe)  # the same recipe resumes
+    assert again["curves"][0]["curve"][:2] == result["curves"][0]["curve"]
 
 
 def test_residual_ppo_starts_as_the_law_and_every_curve_starts_before_learning(tmp_path):
@@ -133,5 +178,5 @@ def test_cloning_initialised_ppo_warms_its_critic_with_the_clone_held_as_it_was_
     stats.update(np.ones((4, len(before))))
     np.testing.assert_array_equal(stats.mean, before)
     assert PPO.load(work / "model.zip", device="cpu").num_timesteps == tuned["timesteps"]
-    with pytest.raises(SystemExit, match="critic warm-up of 128 env steps, asked for 0"):
+    with pytest.raises(SystemExit, match=r"trained with \{'critic_warmup': 128\}, asked for the defaults"):
         run(tmp_path, *common, "--timesteps", "384", "--critic-warmup", "0")
