@@ -82,10 +82,12 @@ SB3_PROBLEM = {
     "docking": "docking+cbf",
     "docking-constrained": "docking-constrained+cbf",
 }
-# The long RL rows (issue 60), each flown when results/rl-baselines/<task>/<algo>.json is committed.
+# The long RL rows (issue 60), each flown when results/rl-baselines/<task>/<label>.json is committed
+# (label: the algo, or algo-tag for a recipe beyond the zoo's settings).
 RL_ROWS = {
     "ppo": "PPO (long run)",
     "residual-ppo": "residual PPO (long run)",
+    "residual-ppo-std4-term10": "residual PPO, log std -4, terminal weight 10 (long run)",
     "bc-ppo": "cloning-initialised PPO (long run)",
     "sac": "SAC (long run)",
 }
@@ -457,8 +459,8 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
         )
     # the long RL runs (issue 60) committed for this task: their own seeds and budget, flown from the
     # checkpoints benchmarks/rl_baselines.py left under runs/rl-baselines (the filter in the loop on docking)
-    for algo, name in RL_ROWS.items():
-        rl = rl_summary(ROOT / "results" / "rl-baselines" / task.name / f"{algo}.json")
+    for label, name in RL_ROWS.items():
+        rl = rl_summary(ROOT / "results" / "rl-baselines" / task.name / f"{label}.json")
         if rl and not rl["smoke"]:  # a smoke summary is plumbing, not a row
             rows.append(
                 Entry(
@@ -649,7 +651,17 @@ def rl_summary(path: Path) -> dict | None:
     if not path.exists():
         return None
     summary = json.loads(path.read_text(encoding="utf-8"))
-    keys = ("algo", "env_steps", "seeds", "command", "smoke", "residual_scale")
+    keys = (
+        "algo",
+        "env_steps",
+        "seeds",
+        "command",
+        "smoke",
+        "residual_scale",
+        "tag",
+        "reward",
+        "log_std_init",
+    )
     rl = {k: summary[k] for k in keys if k in summary}
     rl["checkpoint_steps"] = {str(r["seed"]): r["curve"][-1]["timesteps"] for r in summary["curves"]}
     return rl
@@ -659,9 +671,13 @@ def trained_rl(task: Task, rl: dict, seed: int, work: Path = RL_WORK):
     """A long RL row's policy at ``seed``: the checkpoint benchmarks/rl_baselines.py left under
     ``work``, refused unless it is the one the committed summary scored (same env steps)."""
     baselines = _rl_baselines()
-    scale = ["--residual-scale", str(rl["residual_scale"])] if "residual_scale" in rl else []
-    run = baselines.Row(baselines.parse_args(["--task", task.name, "--algo", rl["algo"], *scale]))
-    work = work / task.name / rl["algo"] / f"s{seed}"
+    recipe = ["--residual-scale", str(rl["residual_scale"])] if "residual_scale" in rl else []
+    recipe += ["--tag", rl["tag"]] if "tag" in rl else []
+    recipe += ["--reward", *(f"{k}={v!r}" for k, v in rl["reward"].items())] if "reward" in rl else []
+    recipe += ["--log-std-init", repr(rl["log_std_init"])] if "log_std_init" in rl else []
+    args = baselines.parse_args(["--task", task.name, "--algo", rl["algo"], *recipe])
+    run = baselines.Row(args)
+    work = work / task.name / args.label / f"s{seed}"
     if not all((work / name).exists() for name in (baselines.MODEL, baselines.STATISTICS)):
         raise SystemExit(f"{rl['algo']} seed {seed}: no checkpoint in {work}; train it: {rl['command']}")
     model, normalizer = run.load(work, run.envs(seed, 1))

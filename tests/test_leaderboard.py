@@ -61,9 +61,9 @@ def test_every_task_has_every_kind_of_row_with_the_issues_keys():
             assert min(row["metric_per_seed"]) <= row["iqm"]["iqm"] <= max(row["metric_per_seed"])
             assert row["iqm"]["ci95"][0] <= row["iqm"]["iqm"] <= row["iqm"]["ci95"][1]
             # the row is the committed run's: a longer run committed since must be flown again
-            algo = {name: algo for algo, name in leaderboard().RL_ROWS.items()}[row["controller"]]
+            label = {name: label for label, name in leaderboard().RL_ROWS.items()}[row["controller"]]
             summary = json.loads(
-                (ROOT / "results" / "rl-baselines" / row["task"] / f"{algo}.json").read_text()
+                (ROOT / "results" / "rl-baselines" / row["task"] / f"{label}.json").read_text()
             )
             assert (summary["env_steps"], summary["seeds"]) == (row["env_steps"], row["seeds"]), row[
                 "controller"
@@ -235,7 +235,18 @@ def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs()
 
 
 @pytest.mark.needs("rl", "families")
-def test_an_rl_row_flies_the_checkpoint_its_summary_scored_and_refuses_another(tmp_path):
+@pytest.mark.parametrize(
+    ("algo", "recipe", "label"),
+    [
+        ("ppo", [], "ppo"),
+        (  # a recipe beyond the zoo's settings, kept under its tag: flown with it
+            "residual-ppo",
+            ["--tag", "quiet", "--log-std-init", "-4", "--reward", "terminal_weight=10"],
+            "residual-ppo-quiet",
+        ),
+    ],
+)
+def test_an_rl_row_flies_the_checkpoint_its_summary_scored_and_refuses_another(tmp_path, algo, recipe, label):
     """A long RL row (issue 60) is flown from the checkpoint benchmarks/rl_baselines.py left: on the
     sealed starts the leaderboard's flight scores what the committed summary says, to the last digit;
     a checkpoint trained on past it is refused by name, not flown as the committed row."""
@@ -243,14 +254,14 @@ def test_an_rl_row_flies_the_checkpoint_its_summary_scored_and_refuses_another(t
     import rl_baselines
 
     work, out = tmp_path / "work", tmp_path / "out"
-    common = ["--task", "docking", "--algo", "ppo", "--seeds", "0", "--eval-every", "128", "--smoke"]
+    common = ["--task", "docking", "--algo", algo, "--seeds", "0", "--eval-every", "128", "--smoke", *recipe]
     rl_baselines.main([*common, "--timesteps", "128", "--work", str(work), "--out", str(out)])
     board = leaderboard()
-    rl = board.rl_summary(out / "docking" / "ppo.json")
+    rl = board.rl_summary(out / "docking" / f"{label}.json")
     assert rl["smoke"] and rl["seeds"] == [0] and rl["checkpoint_steps"]["0"] >= 128
     task = board.Task.load("docking", None)  # every sealed start, as the summary scored them
     flight = task.fly(board.trained_rl(task, rl, 0, work), cbf=True)
-    summary = json.loads((out / "docking" / "ppo.json").read_text())
+    summary = json.loads((out / "docking" / f"{label}.json").read_text())
     assert task.metrics(flight)["score"] == pytest.approx(summary["metric_per_seed"][0], rel=1e-9)
     assert board.rl_summary(tmp_path / "absent.json") is None
     rl_baselines.main([*common, "--timesteps", "384", "--work", str(work), "--out", str(tmp_path / "later")])
