@@ -10,13 +10,22 @@ each flown under four dispersion draws (dispersion seeds 0, 1000, 2000, 3000): 5
 2. At k = 3 and 3 sigma, every start that breaks the cone: the filter's one-sigma position error
    (its sigma, widened by its measured noise scale), the position margin it sized from it, the
    estimate's true error over the last four steps, and where the full margin first had no action.
+3. Two changes to how the cone's row is linearised, at k = 3 and 3 sigma, neither kept: six
+   re-linearisations instead of three (cbf_multi.LINEARISATIONS), and the row taken as the cone's
+   supporting plane along the predicted point's lateral direction (the plane through the generator
+   nearest it) instead of the tangent plane of the cone's level set through it.
 """
+
+from typing import ClassVar
 
 import numpy as np
 
+import cwh_envs.robust_cbf as robust_cbf
 import cwh_envs.rollout as rollout
+from cwh_envs.cbf_multi import cone_axis
 from cwh_envs.controllers import WaypointFeedback
 from cwh_envs.datasets import evaluation_set
+from cwh_envs.dynamics import apply
 from cwh_envs.navigation import NavigationFilter
 from cwh_envs.prepare import load_train
 from cwh_envs.robust_cbf import ErrorBounds
@@ -33,7 +42,7 @@ a, _ = problem.matrices()
 class Recorded(NavigationFilter):
     """The navigation filter fly builds, recording the sigma it hands the robust CBF each step."""
 
-    sigmas: list = []
+    sigmas: ClassVar[list] = []
 
     def sigma(self):
         sigma = super().sigma()
@@ -70,6 +79,39 @@ def flown(k: float, scale: float, seed: int, policy=None):
     return flight, bounds
 
 
+def supporting_plane_rows(states, tight, a, b, point, outside, cone_row, cone_h):
+    """Section 3: the cone's row as the supporting plane at the generator nearest the prediction."""
+    half_angle = np.radians(tight.terms["approach_cone"][0])
+    lever = (a @ b + b)[:3]
+    drift = apply(a, apply(a, states))[:, :3] - tight.apex
+    predicted = drift + apply(lever, point)
+    axis = cone_axis(tight.goals)
+    lateral = predicted - np.einsum("ni,ni->n", predicted, axis)[:, None] * axis
+    size = np.linalg.norm(lateral, axis=1, keepdims=True)
+    inward = np.sin(half_angle) * axis - np.cos(half_angle) * lateral / np.where(size > 0, size, 1.0)
+    inward = np.where(size > 0, inward, axis)
+    row, h = apply(lever.T, inward), -np.einsum("ni,ni->n", inward, drift)
+    return zone_rows(states, tight, a, b, point, outside, row, h)
+
+
+zone_rows = robust_cbf._zone_rows
+
+
+def level(k: float, scale: float) -> str:
+    """One level's line: success, breaking starts, steps short of the full margin, distance, energy."""
+    runs = [flown(k, scale, seed)[0] for seed in ((0,) if scale == 0 else DISPERSION_SEEDS)]
+    success = np.mean([f.is_success.mean() for f in runs])
+    breaking = sum(int(broken(f).sum()) for f in runs)
+    short = sum(int((f.cbf_margin_scale < 1.0).sum()) for f in runs)
+    distance = np.mean([f.terminal_distance.mean() for f in runs])
+    energy = np.median(np.concatenate([control_effort(f.thrust, problem)[0] / expert for f in runs]))
+    return (
+        f"{'nominal' if scale == 0 else f'{scale:g} sigma'}: success {success:.2%}, {breaking} breaking a "
+        f"constraint, {short} steps without an action at the full margin, mean terminal distance "
+        f"{distance:.3g} m, energy {energy:.2f}x"
+    )
+
+
 def broken(flight) -> np.ndarray:
     return (flight.cone_depth > 0) | (flight.speed_depth > 0) | (flight.keep_out_depth > 0)
 
@@ -77,16 +119,7 @@ def broken(flight) -> np.ndarray:
 print("1. the margins' k (512 flights a level; nominal: one flight of the 128 starts)\n")
 for k in (3.0, 3.5, 4.0):
     for scale in (0.0, 1.0, 3.0):
-        seeds = (0,) if scale == 0 else DISPERSION_SEEDS
-        runs = [flown(k, scale, seed)[0] for seed in seeds]
-        success = np.mean([f.is_success.mean() for f in runs])
-        breaking = sum(int(broken(f).sum()) for f in runs)
-        distance = np.mean([f.terminal_distance.mean() for f in runs])
-        energy = np.median(np.concatenate([control_effort(f.thrust, problem)[0] / expert for f in runs]))
-        print(
-            f"k = {k:g}, {'nominal' if scale == 0 else f'{scale:g} sigma'}: success {success:.2%}, "
-            f"{breaking} breaking a constraint, mean terminal distance {distance:.3g} m, energy {energy:.2f}x"
-        )
+        print(f"k = {k:g}, {level(k, scale)}")
 
 print("\n2. k = 3, 3 sigma: the starts that break the cone\n")
 rollout.NavigationFilter = Recorded  # fly builds its filter from this name
@@ -114,3 +147,11 @@ for seed in DISPERSION_SEEDS:
         f"seed {seed}, all 128 starts: estimate's error at the last step median {np.median(error[:, -1]) * 100:.1f} cm, "
         f"p99 {np.percentile(error[:, -1], 99) * 100:.1f} cm"
     )
+
+print("\n3. the cone's row linearised otherwise (k = 3, 3 sigma)\n")
+rollout.NavigationFilter = NavigationFilter
+robust_cbf.LINEARISATIONS = 6
+print(f"six re-linearisations: {level(3.0, 3.0)}")
+robust_cbf.LINEARISATIONS = 3
+robust_cbf._zone_rows = supporting_plane_rows
+print(f"the supporting plane along the lateral direction: {level(3.0, 3.0)}")
