@@ -145,6 +145,7 @@ def filter_actions(
     goals: np.ndarray,
     bounds=None,
     navigation_sigma=None,
+    stop_line: bool = False,
 ):
     """Apply the predictive CBF to normalised actions; returns (safe normalised actions, result).
 
@@ -153,11 +154,12 @@ def filter_actions(
     :func:`cwh_envs.cbf_multi.safe_actions_multi`, whose result also says what it ``dropped``.
     With ``bounds`` (:class:`cwh_envs.robust_cbf.ErrorBounds`) the robust filter,
     :func:`cwh_envs.robust_cbf.robust_safe_actions`, answers instead (its result adds ``margin_scale``),
-    its navigation margins per row from ``navigation_sigma`` (N, 2) where given.
+    its navigation margins per row from ``navigation_sigma`` (N, 2) where given, with its stop line
+    where ``stop_line``.
     """
     if bounds is not None:
         result = robust_safe_actions(
-            actions * problem.u_max, states, goals, problem, bounds, margin, navigation_sigma
+            actions * problem.u_max, states, goals, problem, bounds, margin, navigation_sigma, stop_line
         )
         return np.clip(np.asarray(result.u) / problem.u_max, -1.0, 1.0), result
     a, b = problem.matrices()

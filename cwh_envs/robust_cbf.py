@@ -38,6 +38,22 @@ keep-out row is), so the chaser enters the zone only inside the cone; inside the
 row holds from ZONE_LOOKAHEAD beyond the zone on. (Measured on 64 constrained search starts, 1
 sigma: without this, one start of the routed law entered the zone 0.7 m outside the cone.)
 
+**A stop line where the eroded corridor is narrower than its margin** (``stop_line=True``). Near
+the eroded apex the corridor left by the erosion is a few centimetres wide; an estimate that moves
+by as much from one step to the next leaves it, and the full margin then has no action (measured:
+``results/robust-safety/why_covariance_misses_3sigma.txt``: with margins sized by a navigation
+filter's covariance at 3x the noise, the eroded apex lies in front of the port, every start lost
+first has no action three steps from the end, where the nominal law drives it at the port). With
+the stop line, the chaser does not cross the plane normal to the cone's axis at which the eroded
+corridor's half-width equals the position margin ``eps``, ``max(0, eps / tan(theta) - setback)`` in
+front of the port (``setback``: how far behind the port the eroded apex lies): where the two-step
+prediction comes nearer the port than twice the line's distance, the plane replaces the cone's row
+(exact: it is linear in the thrust), and the exact check still holds the cone. Where the margins leave the corridor wide
+at the port (``eps <= setback tan(theta)``) the line is at the port or behind it and never binds, so
+a chaser whose margins are small (a converged filter, 1 sigma) still docks, and one whose margins
+are large (3 sigma) stops short where the corridor has room. Off by default: the robust rows
+committed before it was built fly without it.
+
 **Where no action satisfies every tightened constraint** the filter answers by least violation of
 the margin, never by a stale action: it retries with the margins scaled by each of
 :data:`MARGIN_SCALES` in turn and keeps the first scale that has an action; at scale 0 it is the
@@ -175,16 +191,20 @@ def robust_safe_actions(
     bounds: ErrorBounds,
     margin: float | None = None,
     navigation_sigma=None,
+    stop_line: bool = False,
 ) -> RobustCBFResult:
     """Filter nominal thrust (N, 3) [N] at the estimated states (N, 6) docking at goals (N, 3) on a
     :class:`cwh_envs.problems.DockingProblem`, robust to ``bounds`` (module docstring). ``margin`` is
     the keep-out standoff (``problem.margin`` by default). ``navigation_sigma`` (N, 2), each row's
     one-sigma estimate error (position m, velocity m/s), replaces the bounds' navigation errors per
     row: a navigation filter's own covariance (:meth:`cwh_envs.navigation.NavigationFilter.sigma`),
-    as Cosner et al.'s measurement-robust CBF sizes its margin by the estimator's error bound. 1-D in,
-    1-D out."""
+    as Cosner et al.'s measurement-robust CBF sizes its margin by the estimator's error bound.
+    ``stop_line`` holds the chaser short of the port where the eroded corridor is narrower than the
+    margin (module docstring). 1-D in, 1-D out."""
     if not isinstance(bounds, ErrorBounds):
         raise ValueError(f"bounds must be an ErrorBounds, got {type(bounds).__name__}")
+    if not isinstance(stop_line, bool | np.bool_):
+        raise ValueError(f"stop_line must be True or False, got {stop_line!r}")
     u0, states, goals2, single = check_filter_inputs(u_nominal, estimates, goals, state_name="estimates")
     sigma = None if navigation_sigma is None else _check_sigma(navigation_sigma, len(states))
     standoff = problem.margin if margin is None else float(margin)
@@ -202,7 +222,7 @@ def robust_safe_actions(
             u[todo], dropped[todo] = nominal.u, nominal.dropped
             break
         rows = None if sigma is None else sigma[todo]
-        tight = _Tightened(problem, bounds, a, b, fraction, goals2[todo], standoff, rows)
+        tight = _Tightened(problem, bounds, a, b, fraction, goals2[todo], standoff, rows, stop_line)
         found, ok = _solve(u0[todo], states[todo], tight, a, b, u_max)
         u[todo[ok]], scale[todo[ok]] = found[ok], fraction
         todo = todo[~ok]
@@ -234,18 +254,32 @@ class _Tightened:
     with ``sigma`` (N, 2), the navigation margins are per row (N,)."""
 
     def __init__(
-        self, problem, bounds: ErrorBounds, a, b, fraction: float, goals, standoff: float, sigma
+        self,
+        problem,
+        bounds: ErrorBounds,
+        a,
+        b,
+        fraction: float,
+        goals,
+        standoff: float,
+        sigma,
+        stop_line: bool = False,
     ) -> None:
         self.eps = fraction * bounds.position_margin(a, sigma)  # m
         self.actuation = fraction * bounds.actuation()
         self.goals = goals  # the ports: the cone's zone is the ball of its radius about the port, as scored
         self.apex = goals
+        self.stop = None  # m in front of the port: the stop line (module docstring), where asked for
         speed_limit, cone = problem.speed_limit, problem.approach_cone
         setback = 0.0
         if cone is not None:
             half_angle = np.radians(cone[0])
             setback = problem.capture_radius / np.tan(half_angle) - self.eps / np.sin(half_angle)
             self.apex = goals - np.reshape(setback, (-1, 1)) * cone_axis(goals)
+            if stop_line:
+                self.stop = np.broadcast_to(
+                    np.maximum(0.0, self.eps / np.tan(half_angle) - setback), (len(goals),)
+                )
         if speed_limit is not None:
             v0, v1 = speed_limit
             # The speed row measures distance from the apex: |d(apex) - d(g)| <= |setback|.
@@ -311,7 +345,15 @@ def _zone_rows(states, tight: _Tightened, a, b, point, outside, cone_row, cone_h
     predicted = two_step + apply((a @ b + b)[:3], point)
     near = np.linalg.norm(predicted, axis=1) <= radius + ZONE_LOOKAHEAD
     row = np.where(outside[:, None], ball_row, cone_row)
-    return row, np.where(outside, ball_h, cone_h), outside | near
+    h = np.where(outside, ball_h, cone_h)
+    if tight.stop is not None:  # the stop line replaces the cone's row where the prediction crosses it
+        axis = cone_axis(tight.goals)
+        # within twice the line's distance of the port, so that the row stays on the re-linearisations
+        # once an answer sits on the line
+        crossing = ~outside & (tight.stop > 0.0) & (np.einsum("ni,ni->n", predicted, axis) < 2.0 * tight.stop)
+        row = np.where(crossing[:, None], apply((a @ b + b)[:3].T, axis), row)
+        h = np.where(crossing, tight.stop - np.einsum("ni,ni->n", axis, two_step), h)
+    return row, h, outside | near
 
 
 def _met(states, tight: _Tightened, u, a, b, outside) -> np.ndarray:

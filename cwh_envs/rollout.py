@@ -87,6 +87,7 @@ def fly(
     cbf_bounds=None,
     navigation=None,
     cbf_navigation: str = "bounds",
+    cbf_stop_line: bool = False,
 ) -> Flight:
     """Fly ``policy`` from every start (N, 6) at once (docking: to ``goals`` (N, 3)) for H steps.
 
@@ -119,6 +120,11 @@ def fly(
     row's navigation filter's own covariance at that step (:meth:`NavigationFilter.sigma`, at
     ``cbf_bounds.k_sigma``), the estimate's error where the filter has converged; it needs
     ``navigation`` and ``cbf_bounds``.
+
+    ``cbf_stop_line`` gives the robust filter its stop line (it needs ``cbf_bounds``): the chaser
+    does not cross the plane in front of the port where the corridor the margins leave is narrower
+    than the margin (:mod:`cwh_envs.robust_cbf`), so that large margins stop it short instead of
+    leaving the filter without an action at the eroded apex.
     """
     docking = isinstance(problem, DockingProblem)
     if not docking and not isinstance(problem, RendezvousProblem):
@@ -156,6 +162,8 @@ def fly(
             "filter's covariance (navigation): it needs both, and the filter on the estimate "
             f'(filter_sees="estimate", got {filter_sees!r})'
         )
+    if cbf_stop_line and cbf_bounds is None:
+        raise ValueError("cbf_stop_line is the robust filter's (cbf_bounds): it needs cbf_bounds too")
     horizon = problem.horizon
     gains = nav = None
     if dispersions is not None:
@@ -187,7 +195,9 @@ def fly(
         if margin is not None:
             seen = core.states if filter_sees == "truth" else measured
             sigma = navigator.sigma() if cbf_navigation == "covariance" else None
-            actions, result = filter_actions(actions, seen, problem, margin, core.goals, cbf_bounds, sigma)
+            actions, result = filter_actions(
+                actions, seen, problem, margin, core.goals, cbf_bounds, sigma, cbf_stop_line
+            )
             active[:, k], infeasible[:, k] = result.active, result.infeasible
             if dropped is not None:
                 dropped[:, k] = result.dropped

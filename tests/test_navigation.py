@@ -106,7 +106,7 @@ def test_it_refuses_bounds_without_navigation_noise():
 CONSTRAINED = load_train(ROOT / "families" / "docking-constrained")
 
 
-def constrained_flight(navigation, dispersions=None, cbf_navigation="bounds", n=16):
+def constrained_flight(navigation, dispersions=None, cbf_navigation="bounds", n=16, stop_line=False):
     problem, one_sigma = CONSTRAINED.PROBLEM, CONSTRAINED.DISPERSIONS
     starts, goals = splits.shipped_split("docking", problem, "search").first(n)
     bounds = ErrorBounds.from_dispersions(one_sigma)
@@ -120,6 +120,7 @@ def constrained_flight(navigation, dispersions=None, cbf_navigation="bounds", n=
         navigation=bounds if navigation else None,
         dispersions=dispersions,
         cbf_navigation=cbf_navigation,
+        cbf_stop_line=stop_line,
     )
 
 
@@ -155,6 +156,25 @@ def test_margins_on_the_filters_covariance_keep_every_constraint_at_one_sigma_an
     assert energy[0] < energy[1]
 
 
+def test_the_stop_line_keeps_the_covariance_sized_filter_whole_at_three_sigma_and_moves_nothing_at_one():
+    """At 3 sigma a navigation filter's margins leave the eroded apex in front of the port; without
+    the stop line the law drives the chaser into it and the filter has no action at the full margin
+    (results/robust-safety/why_covariance_misses_3sigma.txt). With it the chaser stops short there:
+    nothing broken, every start docked. At 1 sigma the margins leave the corridor wide at the port,
+    the line never binds, and the flight is the same to the bit."""
+    stress = {name: 3 * value for name, value in CONSTRAINED.DISPERSIONS.items()}
+    without = constrained_flight(True, stress, "covariance", n=128)
+    held = constrained_flight(True, stress, "covariance", n=128, stop_line=True)
+    assert (without.cone_depth > 0).sum() >= 1  # measured: start 51, 6.5 mm outside the cone
+    for depth in (held.keep_out_depth, held.speed_depth, held.cone_depth):
+        np.testing.assert_array_equal(depth, 0.0)
+    assert held.is_success.all()
+    assert held.cbf_margin_scale.mean() > without.cbf_margin_scale.mean()  # fewer steps short of margin
+    one_sigma = CONSTRAINED.DISPERSIONS
+    plain, lined = (constrained_flight(True, one_sigma, "covariance", 32, line) for line in (False, True))
+    np.testing.assert_array_equal(lined.states, plain.states)
+
+
 def test_fly_refuses_a_navigation_filter_it_cannot_run():
     rendezvous = RendezvousProblem()
     with pytest.raises(ValueError, match="navigation"):
@@ -163,6 +183,8 @@ def test_fly_refuses_a_navigation_filter_it_cannot_run():
     starts, goals = splits.shipped_split("docking", problem, "search").first(1)
     with pytest.raises(ValueError, match="ErrorBounds"):
         fly(problem, WaypointFeedback(problem), starts, goals, navigation=ONE_SIGMA)
+    with pytest.raises(ValueError, match=r"cbf_stop_line.*cbf_bounds"):
+        fly(problem, WaypointFeedback(problem), starts, goals, cbf_margin=problem.margin, cbf_stop_line=True)
     bounds = ErrorBounds.from_dispersions(CONSTRAINED.DISPERSIONS)
     law = WaypointFeedback(problem)
     with pytest.raises(ValueError, match="cbf_navigation must be one of"):
