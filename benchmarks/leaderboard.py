@@ -225,10 +225,11 @@ class Task:
         robust: bool = False,
         navigation: bool = False,
         cbf_navigation: str = "bounds",
+        stop_line: bool = False,
     ):
         """Nominal, or under the dispersions scaled by ``scale`` (the filter on the estimate; with
         ``navigation``, everything on the navigation filter's estimate, sized by :attr:`bounds`;
-        ``cbf_navigation`` as :func:`cwh_envs.rollout.fly`'s)."""
+        ``cbf_navigation`` and ``stop_line`` as :func:`cwh_envs.rollout.fly`'s ``cbf_`` ones)."""
         held = self.held_out if starts is None else self.held_out.take(starts)
         return fly(
             self.problem,
@@ -241,12 +242,20 @@ class Task:
             dispersion_seed=getattr(self.train, "DISPERSION_SEED", 0),
             navigation=self.bounds if navigation else None,
             cbf_navigation=cbf_navigation,
+            cbf_stop_line=stop_line,
         )
 
     def fly_row(self, entry: Entry, policy, starts: int | None = None, scale: float | None = None):
-        """:meth:`fly` through the filters a row names (its cbf, robust, navigation, cbf_navigation)."""
+        """:meth:`fly` through the filters a row names (cbf, robust, navigation, cbf_navigation, stop_line)."""
         return self.fly(
-            policy, entry.cbf, starts, scale, entry.robust, entry.navigation, entry.cbf_navigation
+            policy,
+            entry.cbf,
+            starts,
+            scale,
+            entry.robust,
+            entry.navigation,
+            entry.cbf_navigation,
+            entry.stop_line,
         )
 
 
@@ -268,6 +277,7 @@ class Entry:
     # what sizes the robust filter's navigation margins: "bounds" (Task.bounds) or "covariance" (the
     # navigation filter's own, rollout.fly's cbf_navigation)
     cbf_navigation: str = "bounds"
+    stop_line: bool = False  # the robust filter's stop line (rollout.fly's cbf_stop_line)
     rl: dict | None = None  # an RL row's committed summary (benchmarks/rl_baselines.py): its seeds and budget
 
 
@@ -347,6 +357,19 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     navigation=True,
                     cbf_navigation="covariance",
                 ),
+                Entry(  # the same with the robust filter's stop line (cwh_envs.robust_cbf)
+                    "tube MPC + covariance-sized robust CBF with stop line + navigation filter (robust)",
+                    "classical",
+                    True,
+                    lambda seed: TubeMPC(problem, task.bounds),
+                    f"cwh_envs.tube_mpc + cwh_envs.robust_cbf (navigation margins from cwh_envs.navigation's "
+                    f"covariance; stop line) + cwh_envs.navigation ({bounds_source})",
+                    robust=True,
+                    sized=True,
+                    navigation=True,
+                    cbf_navigation="covariance",
+                    stop_line=True,
+                ),
             ]
             if docking
             else []
@@ -400,6 +423,18 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     robust=True,
                     navigation=True,
                     cbf_navigation="covariance",
+                ),
+                Entry(  # the same with the robust filter's stop line (cwh_envs.robust_cbf)
+                    f"{law_name} + covariance-sized robust CBF with stop line + navigation filter",
+                    "classical",
+                    True,
+                    law,
+                    f"cwh_envs.robust_cbf (navigation margins from cwh_envs.navigation's covariance; stop "
+                    f"line) + cwh_envs.navigation ({bounds_source})",
+                    robust=True,
+                    navigation=True,
+                    cbf_navigation="covariance",
+                    stop_line=True,
                 ),
             ]
             if docking
@@ -532,6 +567,7 @@ ROW_ORDER = (
     "tube MPC + navigation filter (robust)",
     "tube MPC + robust CBF + navigation filter (robust)",
     "tube MPC + covariance-sized robust CBF + navigation filter (robust)",
+    "tube MPC + covariance-sized robust CBF with stop line + navigation filter (robust)",
     "closed-form feedback",
     "routed feedback",
     "closed-form feedback + robust CBF",
@@ -540,6 +576,8 @@ ROW_ORDER = (
     "routed feedback + robust CBF + navigation filter",
     "closed-form feedback + covariance-sized robust CBF + navigation filter",
     "routed feedback + covariance-sized robust CBF + navigation filter",
+    "closed-form feedback + covariance-sized robust CBF with stop line + navigation filter",
+    "routed feedback + covariance-sized robust CBF with stop line + navigation filter",
     "PD",
     "family best (BC)",
     "robust hand recipe (BC)",
@@ -802,6 +840,7 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
             cbf_bounds=task.bounds if entry.robust else None,
             navigation=task.bounds if entry.navigation else None,
             cbf_navigation=entry.cbf_navigation,
+            cbf_stop_line=entry.stop_line,
         )
         sigmas = [None] * len(calls)  # the navigation filter's, where it sizes the robust filter
         if isinstance(policy, RecedingHorizon):
@@ -831,6 +870,7 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
                     goal,
                     task.bounds if entry.robust else None,
                     sigmas[k],
+                    entry.stop_line,
                 )
                 seconds[k] += time.perf_counter() - started
         samples.append(seconds)
@@ -928,6 +968,8 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
         out["robust_bounds"] = {"from": "1-sigma DISPERSIONS", "k_sigma": ROBUST_K_SIGMA}
         if entry.cbf_navigation == "covariance":
             out["robust_bounds"]["navigation_margins"] = "the navigation filter's covariance"
+        if entry.stop_line:
+            out["robust_bounds"]["stop_line"] = True
     if task.docking:
         out |= flight(task)
     return out
@@ -1086,10 +1128,12 @@ SUMMARY_ROWS = (
 
 def summarised(controller: str) -> bool:
     """Whether a row is in the README's summary: those SUMMARY_ROWS name, less the robust filter on the
-    raw measurement where its row on the navigation filter (flight software's view) stands beside it;
-    every row stays in results/leaderboard.md."""
+    raw measurement where its row on the navigation filter (flight software's view) stands beside it,
+    and the covariance-sized one without its stop line where the row with it does; every row stays
+    in results/leaderboard.md."""
     raw_robust = "robust CBF" in controller and "navigation filter" not in controller
-    return any(k in controller for k in SUMMARY_ROWS) and not raw_robust
+    unlined = "covariance-sized robust CBF + " in controller
+    return any(k in controller for k in SUMMARY_ROWS) and not raw_robust and not unlined
 
 
 SUMMARY_START, SUMMARY_END = "<!-- leaderboard summary: start -->", "<!-- leaderboard summary: end -->"
@@ -1220,6 +1264,7 @@ def main(argv=None) -> None:
                 "dispersion_levels": DISPERSION_LEVELS,
                 **({"robust": dataclasses.asdict(task.bounds)} if entry.robust or entry.sized else {}),
                 **({"cbf_navigation": entry.cbf_navigation} if entry.cbf_navigation != "bounds" else {}),
+                **({"stop_line": True} if entry.stop_line else {}),
             }
             cached = (
                 json.loads(cache.read_text(encoding="utf-8")) if cache.exists() and not args.fresh else {}

@@ -116,6 +116,19 @@ def rows(problem, bounds: ErrorBounds, mpc_starts: int) -> list[dict]:
             make=lambda: TubeMPC(problem, bounds),
             fly=covariance,
         ),
+        dict(  # the same two with the robust filter's stop line (cwh_envs.robust_cbf)
+            name=f"{label} + covariance-sized robust CBF with stop line + navigation filter (k={bounds.k_sigma:g})",
+            make=lambda: law(problem),
+            fly={**covariance, "cbf_stop_line": True},
+        ),
+        dict(
+            name=(
+                "tube MPC + covariance-sized robust CBF with stop line + navigation filter "
+                f"(1σ bounds, k={bounds.k_sigma:g})"
+            ),
+            make=lambda: TubeMPC(problem, bounds),
+            fly={**covariance, "cbf_stop_line": True},
+        ),
     ]
     if mpc_starts:
         out += [

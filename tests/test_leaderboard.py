@@ -146,7 +146,8 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     board = leaderboard()
     task = board.Task.load("docking-constrained", 4)
     rows = board.entries(task, ROOT / "runs" / "leaderboard", [1])
-    entry, on_filter, on_covariance = [e for e in rows if e.robust and e.kind == "classical" and not e.sized]
+    robust = [e for e in rows if e.robust and e.kind == "classical" and not e.sized]
+    entry, on_filter, on_covariance, lined = robust
     assert entry.name == "routed feedback + robust CBF" and not entry.navigation
     measured = board.measure(task, entry, [1])["per_seed"][0]
     assert set(measured["dispersed"]) == {"1sigma", "3sigma"}
@@ -178,6 +179,14 @@ def test_a_robust_row_flies_the_robust_filter_and_counts_what_each_dispersion_le
     row = board.row(task, on_covariance, {"per_seed": [measured]}, None)
     assert row["robust_bounds"]["navigation_margins"] == "the navigation filter's covariance"
     assert board.time_per_step(task, on_covariance, None)["steps"] == 4 * task.problem.horizon
+    # ... and with the stop line (cwh_envs.robust_cbf), which each level's flight flies and the row says.
+    assert lined.name == "routed feedback + covariance-sized robust CBF with stop line + navigation filter"
+    assert lined.stop_line and lined.cbf_navigation == "covariance" and not on_covariance.stop_line
+    measured = board.measure(task, lined, [1])["per_seed"][0]
+    flown = task.fly(lined.make(None), True, None, 3.0, True, True, "covariance", True)
+    assert measured["dispersed"]["3sigma"]["success_rate"] == float(flown.is_success.mean())
+    assert board.row(task, lined, {"per_seed": [measured]}, None)["robust_bounds"]["stop_line"] is True
+    assert board.time_per_step(task, lined, None)["steps"] == 4 * task.problem.horizon
 
 
 @pytest.mark.needs("families")
@@ -214,8 +223,10 @@ def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs()
         "tube MPC + navigation filter (robust)",
         "tube MPC + robust CBF + navigation filter (robust)",
         "tube MPC + covariance-sized robust CBF + navigation filter (robust)",
+        "tube MPC + covariance-sized robust CBF with stop line + navigation filter (robust)",
     ]
     entry, layered, on_covariance = sized[0], sized[2], sized[3]
+    assert sized[4].stop_line and not on_covariance.stop_line
     assert not entry.cbf and not entry.robust
     assert layered.cbf and layered.robust and layered.navigation  # the layers together, as flight software
     assert layered.cbf_navigation == "bounds" and on_covariance.cbf_navigation == "covariance"

@@ -29,6 +29,8 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
         "tube MPC + robust CBF + navigation filter (1σ bounds, k=3)",
         "routed law + covariance-sized robust CBF + navigation filter (k=3)",
         "tube MPC + covariance-sized robust CBF + navigation filter (1σ bounds, k=3)",
+        "routed law + covariance-sized robust CBF with stop line + navigation filter (k=3)",
+        "tube MPC + covariance-sized robust CBF with stop line + navigation filter (1σ bounds, k=3)",
     ]
     for row in payload["rows"]:
         assert row["starts"] == 3 and row["us_per_step"] > 0
@@ -38,10 +40,10 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
     # Without dispersions, the nominal and the truth-fed filter are one flight.
     assert payload["rows"][0]["nominal"] == payload["rows"][1]["nominal"]
     table = (tmp_path / "docking-constrained.md").read_text()
-    assert "--starts 3" in table and table.count("| routed law") == 5
+    assert "--starts 3" in table and table.count("| routed law") == 6
     # On the navigation filter a nominal flight has no innovation: the robust CBF flies as on the state.
     assert payload["rows"][3]["nominal"] == payload["rows"][2]["nominal"]
-    for tube in payload["rows"][4:7] + payload["rows"][8:]:
+    for tube in [row for row in payload["rows"] if row["controller"].startswith("tube")]:
         for level in ("nominal", "1σ", "3σ"):  # one plan per start, at every level
             assert sum(tube[level]["plans"].values()) == 3
     assert "Tube MPC plans, one per episode" in table
