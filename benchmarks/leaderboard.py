@@ -86,6 +86,7 @@ SB3_PROBLEM = {
 # (label: the algo, or algo-tag for a recipe beyond the zoo's settings).
 RL_ROWS = {
     "ppo": "PPO (long run)",
+    "ppo-term25": "PPO, terminal weight 25 (long run)",
     "residual-ppo": "residual PPO (long run)",
     "residual-ppo-std4-term10": "residual PPO, log std -4, terminal weight 10 (long run)",
     "bc-ppo": "cloning-initialised PPO (long run)",
