@@ -1021,3 +1021,29 @@ def test_the_navigation_filter_lever_puts_the_policy_and_the_filter_on_its_estim
     }
     with pytest.raises(SystemExit, match="NAVIGATION_FILTER"):
         train.check_config({**config, "NAVIGATION_FILTER": "yes"})
+
+
+def test_the_covariance_margins_lever_sizes_the_robust_filter_by_the_navigation_filter_with_its_stop_line(
+    trains,
+):
+    """COVARIANCE_MARGINS (issue 58): with the navigation filter and the robust filter, the robust
+    filter's navigation margins come from the navigation filter's covariance and it gets its stop
+    line; alone, or without the robust filter, it changes nothing. A small random route policy flown
+    with it at 3 sigma keeps every constraint, on margins smaller than the raw measurement's."""
+    train = trains["docking-constrained"]
+    config = {**defaults(train), "POLICY_FORM": "route", "ROBUST_FILTER_K": 3.0, "NAVIGATION_FILTER": True}
+    on_filter = train.safety_filter(config)
+    sized = train.safety_filter({**config, "COVARIANCE_MARGINS": True})
+    assert sized == {**on_filter, "cbf_navigation": "covariance", "cbf_stop_line": True}
+    for without in ({"NAVIGATION_FILTER": False}, {"ROBUST_FILTER_K": 0.0}, {"RUNTIME_CBF_FILTER": False}):
+        alone = {**config, **without}
+        assert train.safety_filter({**alone, "COVARIANCE_MARGINS": True}) == train.safety_filter(alone)
+    policy = small_policy(train, "route")
+    starts, goals = starts_of(train, 16)
+    stress = {name: train.STRESS_SCALE * value for name, value in train.DISPERSIONS.items()}
+    flown = train.fly(policy, starts, goals, sized, stress)
+    for depth in (flown.keep_out_depth, flown.speed_depth, flown.cone_depth):
+        np.testing.assert_array_equal(depth, 0.0)
+    assert not np.allclose(flown.states, train.fly(policy, starts, goals, on_filter, stress).states)
+    with pytest.raises(SystemExit, match="COVARIANCE_MARGINS"):
+        train.check_config({**config, "COVARIANCE_MARGINS": 1})

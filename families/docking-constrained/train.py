@@ -56,7 +56,10 @@ so that the policy is fine-tuned through the dynamics it will fly (issue 58). NA
 flight software's navigation filter (cwh_envs.navigation, sized for DISPERSIONS) between the
 measurement and the policy and the safety filter, which then act on its estimate, and commands the
 thrust through its estimate of the thrust error (rollout.fly's ``navigation``); a nominal flight is
-unchanged.
+unchanged. COVARIANCE_MARGINS, with the navigation filter and the robust filter, sizes the robust
+filter's navigation margins by the navigation filter's own covariance at each step and gives it its
+stop line (rollout.fly's ``cbf_navigation="covariance"`` and ``cbf_stop_line``): margins that shrink
+as the filter converges, and a chaser held short of the port where they leave the corridor too narrow.
 """
 
 from __future__ import annotations
@@ -118,6 +121,7 @@ ROBUST_FILTER_K = 0.0  # > 0: the filter is the robust one, sized for DISPERSION
 DAGGER_DISPERSED = False  # True: DAgger's rounds are flown under DISPERSIONS
 FINETUNE_DISPERSED = False  # True: fine-tuning flies each start under a fresh draw of DISPERSIONS
 NAVIGATION_FILTER = False  # True: the policy and the filter act on a navigation filter's estimate
+COVARIANCE_MARGINS = False  # True (with both filters): robust margins from its covariance, stop line
 # ===== Fixed Configuration (immutable below this line) =====
 
 TASK = "docking"
@@ -179,6 +183,7 @@ CONFIG_NAMES = (
     "DAGGER_DISPERSED",
     "FINETUNE_DISPERSED",
     "NAVIGATION_FILTER",
+    "COVARIANCE_MARGINS",
 )
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU, "gelu": nn.GELU}
 POLICY_FORMS = ("direct", "residual", "route")
@@ -337,6 +342,8 @@ def check_config(config: dict) -> None:
         problems.append("FINETUNE_DISPERSED must be True or False")
     if not isinstance(config["NAVIGATION_FILTER"], bool):
         problems.append("NAVIGATION_FILTER must be True or False")
+    if not isinstance(config["COVARIANCE_MARGINS"], bool):
+        problems.append("COVARIANCE_MARGINS must be True or False")
     frac = config["RECOVERY_AUGMENT_FRAC"]
     if not (isinstance(frac, int | float) and 0 <= frac <= MAX_RECOVERY_FRAC):
         problems.append(f"RECOVERY_AUGMENT_FRAC must lie in [0, {MAX_RECOVERY_FRAC}]")
@@ -857,12 +864,16 @@ def finetune(
 def safety_filter(config: dict) -> dict:
     """The recipe's flight software, as fly's keywords: with NAVIGATION_FILTER, the navigation filter
     sized for DISPERSIONS; then no filter, the multi-constraint CBF filter (keep-out margin
-    PROBLEM.margin), or, with ROBUST_FILTER_K > 0, its robust form sized for DISPERSIONS."""
+    PROBLEM.margin), or, with ROBUST_FILTER_K > 0, its robust form sized for DISPERSIONS, its
+    navigation margins from the navigation filter's covariance and with its stop line where
+    COVARIANCE_MARGINS and NAVIGATION_FILTER both hold (COVARIANCE_MARGINS alone changes nothing)."""
     out = {"navigation": ErrorBounds.from_dispersions(DISPERSIONS)} if config["NAVIGATION_FILTER"] else {}
     if not config["RUNTIME_CBF_FILTER"]:
         return out
     if config["ROBUST_FILTER_K"] > 0:
         bounds = ErrorBounds.from_dispersions(DISPERSIONS, k_sigma=float(config["ROBUST_FILTER_K"]))
+        if config["COVARIANCE_MARGINS"] and config["NAVIGATION_FILTER"]:
+            out |= {"cbf_navigation": "covariance", "cbf_stop_line": True}
         return {**out, "cbf_margin": PROBLEM.margin, "cbf_bounds": bounds}
     return {**out, "cbf_margin": PROBLEM.margin}
 
