@@ -293,6 +293,18 @@ class OpenLoop:
         return self.actions[np.arange(len(obs)), step]
 
 
+def with_stop_line(entry: Entry) -> Entry:
+    """A covariance-sized robust row flown again with the robust filter's stop line
+    (:func:`cwh_envs.robust_cbf.robust_safe_actions`' ``stop_line``). Its name and source text say so
+    in the words its committed record and row cache were keyed by."""
+    return dataclasses.replace(
+        entry,
+        name=entry.name.replace("robust CBF +", "robust CBF with stop line +"),
+        source=entry.source.replace("covariance)", "covariance; stop line)"),
+        stop_line=True,
+    )
+
+
 def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = None) -> list[Entry]:
     problem, docking = task.problem, task.docking
     plain = problem.replace(speed_limit=None, approach_cone=None) if docking else problem
@@ -346,7 +358,8 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     sized=True,
                     navigation=True,
                 ),
-                Entry(  # the same, the robust filter's navigation margins sized by the navigation filter's covariance
+                tube_covariance
+                := Entry(  # the robust filter's navigation margins from the navigation filter's covariance
                     "tube MPC + covariance-sized robust CBF + navigation filter (robust)",
                     "classical",
                     True,
@@ -358,19 +371,7 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     navigation=True,
                     cbf_navigation="covariance",
                 ),
-                Entry(  # the same with the robust filter's stop line (cwh_envs.robust_cbf)
-                    "tube MPC + covariance-sized robust CBF with stop line + navigation filter (robust)",
-                    "classical",
-                    True,
-                    lambda seed: TubeMPC(problem, task.bounds),
-                    f"cwh_envs.tube_mpc + cwh_envs.robust_cbf (navigation margins from cwh_envs.navigation's "
-                    f"covariance; stop line) + cwh_envs.navigation ({bounds_source})",
-                    robust=True,
-                    sized=True,
-                    navigation=True,
-                    cbf_navigation="covariance",
-                    stop_line=True,
-                ),
+                with_stop_line(tube_covariance),
             ]
             if docking
             else []
@@ -414,7 +415,8 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     robust=True,
                     navigation=True,
                 ),
-                Entry(  # its navigation margins sized by the navigation filter's own covariance
+                law_covariance
+                := Entry(  # its navigation margins sized by the navigation filter's own covariance
                     f"{law_name} + covariance-sized robust CBF + navigation filter",
                     "classical",
                     True,
@@ -425,18 +427,7 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                     navigation=True,
                     cbf_navigation="covariance",
                 ),
-                Entry(  # the same with the robust filter's stop line (cwh_envs.robust_cbf)
-                    f"{law_name} + covariance-sized robust CBF with stop line + navigation filter",
-                    "classical",
-                    True,
-                    law,
-                    f"cwh_envs.robust_cbf (navigation margins from cwh_envs.navigation's covariance; stop "
-                    f"line) + cwh_envs.navigation ({bounds_source})",
-                    robust=True,
-                    navigation=True,
-                    cbf_navigation="covariance",
-                    stop_line=True,
-                ),
+                with_stop_line(law_covariance),
             ]
             if docking
             else []
