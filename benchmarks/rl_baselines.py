@@ -53,7 +53,7 @@ TASKS = {
 ALGOS = ("ppo", "sac", "residual-ppo", "bc-ppo")
 BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples use 2000 to 50000)
 BOOTSTRAP_SEED = 0
-RECIPE_KEYS = ("critic_warmup", "reward", "log_std_init")  # recipe()'s, in a curve's first point
+RECIPE_KEYS = ("critic_warmup", "reward", "log_std_init", "lr_anneal")  # recipe()'s, in a curve's first point
 MODEL, STATISTICS = "model.zip", "vecnormalize.pkl"  # a seed's checkpoint, in its work directory
 METRIC_FLOOR = 1e-9  # the curves are on a log axis: a metric below this is drawn at it (the laws reach ~1e-7)
 
@@ -82,6 +82,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--log-std-init", type=float, default=None, help="the policy's initial log std (the zoo's: -2)"
+    )
+    parser.add_argument(
+        "--lr-anneal",
+        action="store_true",
+        help="the learning rate annealed linearly to 0 over --timesteps (the zoo's lin_ schedules), not held; "
+        "a longer budget resumed stretches the rest of it from where the run stands",
     )
     parser.add_argument(
         "--tag", default=None, help="a recipe's name beside the algo's: work and results under <algo>-<tag>"
@@ -124,6 +130,8 @@ def recipe(args: argparse.Namespace) -> dict:
         out["reward"] = args.reward
     if args.log_std_init is not None:
         out["log_std_init"] = args.log_std_init
+    if args.lr_anneal:
+        out["lr_anneal"] = True
     return out
 
 
@@ -247,6 +255,20 @@ def actor_parameters(model) -> list:
     return [*policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters(), policy.log_std]
 
 
+def anneal(model, start: float, budget: int, chunk: int) -> None:
+    """--lr-anneal: the learning rate falls linearly from ``start`` at step 0 to 0 at ``budget``.
+
+    SB3's progress runs from 1 to 0 over each ``learn()`` call, and a row calls it once per curve point
+    (and again on resuming); so before each call the schedule is set again, on the whole budget: SB3
+    counts the call's total as the steps already taken plus ``chunk`` (``reset_num_timesteps=False``)."""
+    total = model.num_timesteps + chunk
+
+    def rate(progress_remaining: float) -> float:
+        return start * max(0.0, 1.0 - (1.0 - progress_remaining) * total / budget)
+
+    model.lr_schedule = rate
+
+
 def zero_residual(model) -> None:
     """residual-ppo: the policy's mean starts at zero, so the row starts as the base law (the residual
     RL practice of Silver et al. 2018; SB3 initialises the action layer at random)."""
@@ -298,6 +320,8 @@ def train_seed(row: Row, seed: int) -> dict:
         if chunk:
             for parameter in actor_parameters(model):
                 parameter.requires_grad_(not warming)
+            if args.lr_anneal:
+                anneal(model, params["learning_rate"], args.timesteps, chunk)
             started = time.perf_counter()
             model.learn(chunk, reset_num_timesteps=False, progress_bar=False)
             spent += time.perf_counter() - started

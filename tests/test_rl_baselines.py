@@ -180,3 +180,27 @@ def test_cloning_initialised_ppo_warms_its_critic_with_the_clone_held_as_it_was_
     assert PPO.load(work / "model.zip", device="cpu").num_timesteps == tuned["timesteps"]
     with pytest.raises(SystemExit, match=r"trained with \{'critic_warmup': 128\}, asked for the defaults"):
         run(tmp_path, *common, "--timesteps", "384", "--critic-warmup", "0")
+
+
+def test_an_annealed_learning_rate_falls_to_zero_over_the_whole_budget_not_over_each_curve_point(tmp_path):
+    """--lr-anneal: SB3's own progress restarts at every learn() call (one per curve point, and on
+    resuming), so a plain linear schedule would reach 0 at every point; the row's reaches it once, at
+    the budget, and a checkpoint trained with it resumes with it and is refused without it."""
+    from stable_baselines3 import PPO
+
+    common = ["--algo", "ppo", "--seeds", "0", "--eval-every", "128", "--smoke", "--tag", "lin"]
+    result = run(tmp_path, *common, "--timesteps", "128", "--lr-anneal")
+    assert result["lr_anneal"] is True and result["curves"][0]["curve"][0]["lr_anneal"] is True
+    with pytest.raises(SystemExit, match="asked for the defaults"):
+        run(tmp_path, *common, "--timesteps", "256")
+    again = run(tmp_path, *common, "--timesteps", "256", "--lr-anneal")  # loads the pickled schedule
+    assert again["curves"][0]["curve"][:2] == result["curves"][0]["curve"]
+
+    row = rl_baselines.Row(rl_baselines.parse_args(["--task", "docking", "--algo", "ppo", "--smoke"]))
+    model = PPO("MlpPolicy", row.envs(0, 2), n_steps=64, batch_size=64, n_epochs=1, seed=0, device="cpu")
+    rates = []
+    for chunk in (128, 128):  # two rollouts of 2 x 64 steps: one update each, at step 128 and 256
+        rl_baselines.anneal(model, 1e-3, 256, chunk)
+        model.learn(chunk, reset_num_timesteps=False)
+        rates.append(model.policy.optimizer.param_groups[0]["lr"])
+    assert rates == pytest.approx([5e-4, 0.0])
