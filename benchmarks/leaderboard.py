@@ -215,7 +215,11 @@ class Task:
     @property
     def bounds(self) -> ErrorBounds:
         """The robust filter's error bounds: the 1-sigma dispersions at ROBUST_K_SIGMA."""
-        return ErrorBounds.from_dispersions(self.dispersions, k_sigma=ROBUST_K_SIGMA)
+        return self.bounds_at(ROBUST_K_SIGMA)
+
+    def bounds_at(self, k_sigma: float) -> ErrorBounds:
+        """The 1-sigma dispersions at ``k_sigma``: a learned row's robust filter as its recipe sizes it."""
+        return ErrorBounds.from_dispersions(self.dispersions, k_sigma=k_sigma)
 
     def fly(
         self,
@@ -227,10 +231,12 @@ class Task:
         navigation: bool = False,
         cbf_navigation: str = "bounds",
         stop_line: bool = False,
+        k_sigma: float = ROBUST_K_SIGMA,
     ):
         """Nominal, or under the dispersions scaled by ``scale`` (the filter on the estimate; with
         ``navigation``, everything on the navigation filter's estimate, sized by :attr:`bounds`;
-        ``cbf_navigation`` and ``stop_line`` as :func:`cwh_envs.rollout.fly`'s ``cbf_`` ones)."""
+        ``cbf_navigation`` and ``stop_line`` as :func:`cwh_envs.rollout.fly`'s ``cbf_`` ones; the robust
+        filter sized at ``k_sigma``)."""
         held = self.held_out if starts is None else self.held_out.take(starts)
         return fly(
             self.problem,
@@ -238,7 +244,7 @@ class Task:
             held.starts,
             held.goals if self.docking else None,
             cbf_margin=self.problem.margin if cbf else None,
-            cbf_bounds=self.bounds if robust else None,
+            cbf_bounds=self.bounds_at(k_sigma) if robust else None,
             dispersions=None if scale is None else {k: scale * v for k, v in self.dispersions.items()},
             dispersion_seed=getattr(self.train, "DISPERSION_SEED", 0),
             navigation=self.bounds if navigation else None,
@@ -257,6 +263,7 @@ class Task:
             entry.navigation,
             entry.cbf_navigation,
             entry.stop_line,
+            entry.k_sigma,
         )
 
 
@@ -279,6 +286,9 @@ class Entry:
     # navigation filter's own, rollout.fly's cbf_navigation)
     cbf_navigation: str = "bounds"
     stop_line: bool = False  # the robust filter's stop line (rollout.fly's cbf_stop_line)
+    k_sigma: float = (
+        ROBUST_K_SIGMA  # the robust filter's size (a learned row's: its recipe's ROBUST_FILTER_K)
+    )
     rl: dict | None = None  # an RL row's committed summary (benchmarks/rl_baselines.py): its seeds and budget
 
 
@@ -455,23 +465,29 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
         )
     for name, source, config, budget in recipes:
         merged = {**task.defaults(), **config}
-        k_sigma = float(merged.get("ROBUST_FILTER_K", 0.0))
-        if k_sigma not in (0.0, ROBUST_K_SIGMA):  # the rows' robust filter is sized at ROBUST_K_SIGMA only
-            raise ValueError(
-                f"{name}: ROBUST_FILTER_K={k_sigma:g}, the leaderboard flies k={ROBUST_K_SIGMA:g}"
-            )
+        cbf, navigation = (
+            bool(merged.get("RUNTIME_CBF_FILTER", False)),
+            bool(merged.get("NAVIGATION_FILTER", False)),
+        )
+        # flown as train.py's safety_filter flies it: the robust filter only behind the filter's switch,
+        # sized at the recipe's k; its navigation margins from the navigation filter's covariance, with
+        # the stop line, where COVARIANCE_MARGINS and NAVIGATION_FILTER both hold
+        k_sigma = float(merged.get("ROBUST_FILTER_K", 0.0)) if cbf else 0.0
+        covariance = k_sigma > 0.0 and navigation and bool(merged.get("COVARIANCE_MARGINS", False))
         rows.append(
             Entry(
                 name,
                 "bc",
-                bool(merged.get("RUNTIME_CBF_FILTER", False)),
+                cbf,
                 lambda seed, c=config, n=name, b=budget: trained_bc(task, work, n, c, seed, b),
                 source,
                 config,
                 budget,
-                # flown as train.py flies it: through the robust filter and on the navigation filter
                 robust=k_sigma > 0.0,
-                navigation=bool(merged.get("NAVIGATION_FILTER", False)),
+                navigation=navigation,
+                cbf_navigation="covariance" if covariance else "bounds",
+                stop_line=covariance,
+                k_sigma=k_sigma or ROBUST_K_SIGMA,
             )
         )
     for algo in ("ppo", "sac"):
@@ -829,7 +845,7 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
             held.starts[i : i + 1],
             held.goals[i : i + 1] if task.docking else None,
             cbf_margin=task.problem.margin if entry.cbf else None,
-            cbf_bounds=task.bounds if entry.robust else None,
+            cbf_bounds=task.bounds_at(entry.k_sigma) if entry.robust else None,
             navigation=task.bounds if entry.navigation else None,
             cbf_navigation=entry.cbf_navigation,
             cbf_stop_line=entry.stop_line,
@@ -860,7 +876,7 @@ def time_per_step(task: Task, entry: Entry, seed: int | None) -> dict:
                     task.problem,
                     task.problem.margin,
                     goal,
-                    task.bounds if entry.robust else None,
+                    task.bounds_at(entry.k_sigma) if entry.robust else None,
                     sigmas[k],
                     entry.stop_line,
                 )
@@ -957,7 +973,7 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
             for level in DISPERSION_LEVELS
         }
     if entry.robust or entry.sized:
-        out["robust_bounds"] = {"from": "1-sigma DISPERSIONS", "k_sigma": ROBUST_K_SIGMA}
+        out["robust_bounds"] = {"from": "1-sigma DISPERSIONS", "k_sigma": entry.k_sigma}
         if entry.cbf_navigation == "covariance":
             out["robust_bounds"]["navigation_margins"] = "the navigation filter's covariance"
         if entry.stop_line:
@@ -1254,7 +1270,11 @@ def main(argv=None) -> None:
                 # how a docking row is scored and flown dispersed (issue 58): a row cached before is stale
                 **({"flight": flight(task)} if task.docking else {}),
                 "dispersion_levels": DISPERSION_LEVELS,
-                **({"robust": dataclasses.asdict(task.bounds)} if entry.robust or entry.sized else {}),
+                **(
+                    {"robust": dataclasses.asdict(task.bounds_at(entry.k_sigma))}
+                    if entry.robust or entry.sized
+                    else {}
+                ),
                 **({"cbf_navigation": entry.cbf_navigation} if entry.cbf_navigation != "bounds" else {}),
                 **({"stop_line": True} if entry.stop_line else {}),
             }

@@ -203,13 +203,26 @@ def test_the_robust_hand_recipe_row_is_its_audits_promoted_recipe_flown_as_train
     assert entry.kind == "bc" and entry.config == promoted[0]["config"] and entry.time_budget == 600
     assert entry.cbf and entry.robust and entry.navigation
     assert entry.source.startswith(board.ROBUST_RECIPES["docking-constrained"])
-    # A recipe whose filter is sized at another k than the rows' robust filter is refused, by name.
+    # Any learned row flies the filters its train.py's safety_filter would give it: the robust filter
+    # at the recipe's own k behind the filter's switch, covariance-sized with the stop line where asked.
     source, config = board.AGENT_RECIPES["docking-constrained"]
-    monkeypatch.setitem(
-        board.AGENT_RECIPES, "docking-constrained", (source, {**config, "ROBUST_FILTER_K": 2.0})
-    )
-    with pytest.raises(ValueError, match=r"first GP campaign.*ROBUST_FILTER_K=2"):
-        board.entries(task, work, [1])
+    levers = ("RUNTIME_CBF_FILTER", "ROBUST_FILTER_K", "NAVIGATION_FILTER", "COVARIANCE_MARGINS")
+    for switches in [
+        (True, 2.0, True, True),
+        (True, 2.0, True, False),
+        (False, 2.0, True, True),
+        (True, 0.0, False, True),
+    ]:
+        recipe = {**config, **dict(zip(levers, switches, strict=True))}
+        monkeypatch.setitem(board.AGENT_RECIPES, "docking-constrained", (source, recipe))
+        entry = next(e for e in board.entries(task, work, [1]) if e.name == board.FIRST_CAMPAIGN)
+        flown = task.train.safety_filter({**task.defaults(), **recipe})
+        assert entry.cbf == ("cbf_margin" in flown) and entry.navigation == ("navigation" in flown)
+        assert entry.robust == ("cbf_bounds" in flown), switches
+        if entry.robust:
+            assert task.bounds_at(entry.k_sigma) == flown["cbf_bounds"]
+        assert entry.cbf_navigation == flown.get("cbf_navigation", "bounds")
+        assert entry.stop_line == flown.get("cbf_stop_line", False), switches
 
 
 def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs():
