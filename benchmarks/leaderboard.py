@@ -87,6 +87,7 @@ SB3_PROBLEM = {
 RL_ROWS = {
     "ppo": "PPO (long run)",
     "ppo-term25": "PPO, terminal weight 25 (long run)",
+    "ppo-term25-lin": "PPO, terminal weight 25, learning rate annealed (long run)",
     "residual-ppo": "residual PPO (long run)",
     "residual-ppo-std4-term10": "residual PPO, log std -4, terminal weight 10 (long run)",
     "bc-ppo": "cloning-initialised PPO (long run)",
@@ -721,6 +722,7 @@ def trained_rl(task: Task, rl: dict, seed: int, work: Path = RL_WORK):
     recipe += ["--tag", rl["tag"]] if "tag" in rl else []
     recipe += ["--reward", *(f"{k}={v!r}" for k, v in rl["reward"].items())] if "reward" in rl else []
     recipe += ["--log-std-init", repr(rl["log_std_init"])] if "log_std_init" in rl else []
+    recipe += ["--lr-anneal"] if rl.get("lr_anneal") else []
     args = baselines.parse_args(["--task", task.name, "--algo", rl["algo"], *recipe])
     run = baselines.Row(args)
     work = work / task.name / args.label / f"s{seed}"
