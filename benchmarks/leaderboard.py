@@ -287,9 +287,8 @@ class Entry:
     # navigation filter's own, rollout.fly's cbf_navigation)
     cbf_navigation: str = "bounds"
     stop_line: bool = False  # the robust filter's stop line (rollout.fly's cbf_stop_line)
-    k_sigma: float = (
-        ROBUST_K_SIGMA  # the robust filter's size (a learned row's: its recipe's ROBUST_FILTER_K)
-    )
+    # the robust filter's size (a learned row's: its recipe's ROBUST_FILTER_K)
+    k_sigma: float = ROBUST_K_SIGMA
     rl: dict | None = None  # an RL row's committed summary (benchmarks/rl_baselines.py): its seeds and budget
 
 
@@ -314,6 +313,22 @@ def with_stop_line(entry: Entry) -> Entry:
         source=entry.source.replace("covariance)", "covariance; stop line)"),
         stop_line=True,
     )
+
+
+def flown_filters(task: Task, config: dict) -> dict:
+    """A learned row's filters as :class:`Entry` fields: what its family's own ``safety_filter`` gives
+    the recipe (the robust filter at the recipe's k, covariance-sized with the stop line where it asks),
+    so that the row flies as train.py flies it; none on a family without a filter (rendezvous)."""
+    safety = task.train.safety_filter(config) if hasattr(task.train, "safety_filter") else {}
+    bounds = safety.get("cbf_bounds")
+    return {
+        "cbf": "cbf_margin" in safety,
+        "robust": bounds is not None,
+        "navigation": "navigation" in safety,
+        "cbf_navigation": safety.get("cbf_navigation", "bounds"),
+        "stop_line": safety.get("cbf_stop_line", False),
+        "k_sigma": bounds.k_sigma if bounds is not None else ROBUST_K_SIGMA,
+    }
 
 
 def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = None) -> list[Entry]:
@@ -465,30 +480,17 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
             (ROBUST_RECIPE, f"{campaign} (its audit's promoted recipe)", *audited_recipe(campaign))
         )
     for name, source, config, budget in recipes:
-        merged = {**task.defaults(), **config}
-        cbf, navigation = (
-            bool(merged.get("RUNTIME_CBF_FILTER", False)),
-            bool(merged.get("NAVIGATION_FILTER", False)),
-        )
-        # flown as train.py's safety_filter flies it: the robust filter only behind the filter's switch,
-        # sized at the recipe's k; its navigation margins from the navigation filter's covariance, with
-        # the stop line, where COVARIANCE_MARGINS and NAVIGATION_FILTER both hold
-        k_sigma = float(merged.get("ROBUST_FILTER_K", 0.0)) if cbf else 0.0
-        covariance = k_sigma > 0.0 and navigation and bool(merged.get("COVARIANCE_MARGINS", False))
+        filters = flown_filters(task, {**task.defaults(), **config})
         rows.append(
             Entry(
                 name,
                 "bc",
-                cbf,
+                filters.pop("cbf"),
                 lambda seed, c=config, n=name, b=budget: trained_bc(task, work, n, c, seed, b),
                 source,
                 config,
                 budget,
-                robust=k_sigma > 0.0,
-                navigation=navigation,
-                cbf_navigation="covariance" if covariance else "bounds",
-                stop_line=covariance,
-                k_sigma=k_sigma or ROBUST_K_SIGMA,
+                **filters,
             )
         )
     for algo in ("ppo", "sac"):
