@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from autoresearch.audit.progress import _outcome
 from autoresearch.campaign.audit_log import StepLog, TrialRow
 from autoresearch.execution.protocol import check_split
 from autoresearch.splits import Score, ScoredRun, Split, split_parts
@@ -95,6 +96,19 @@ def test_a_trial_row_written_now_reads_back_as_written():
     assert TrialRow.from_json(data) == row
     failed = TrialRow("f", "f", 3, "failed", Split.SEARCH, None, None, "boom", 1.0, 1, {"X": 1}, None)
     assert TrialRow.from_json(json.loads(json.dumps(failed.to_json()))) == failed
+
+
+def test_an_audit_step_shows_each_run_on_the_split_its_gate_judges():
+    # NOW_TEST is feasible on the search split and infeasible on the sealed one: a verify line that
+    # showed the search split's verdict contradicted the gate's summary below it.
+    verify = TrialRow("v-s11", "v-s11", 11, "ok", Split.TEST, read(NOW_TEST), 0.5, None, 9.0, 0, {}, NOW_TEST)
+    assert _outcome(verify) == "v-s11 2 on test infeasible (9s)"
+    noise = TrialRow(
+        "n-s1", "n-s1", 1, "ok", Split.SEARCH, read(NOW_SEARCH), 0.5, None, None, 0, {}, NOW_SEARCH
+    )
+    assert _outcome(noise) == "n-s1 1"
+    failed = TrialRow("f", "f", 3, "failed", Split.TEST, None, None, "boom", 1.0, 1, {}, None)
+    assert _outcome(failed) == "f failed"
 
 
 def test_committed_rows_from_before_the_shape_still_read():

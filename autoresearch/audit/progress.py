@@ -14,15 +14,19 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from autoresearch.campaign.audit_log import TrialRow
+from autoresearch.splits import Split
 
 
 def _outcome(row: TrialRow) -> str:
-    """The row in a few words: its search-split value (what the campaign selected on)."""
+    """The row in a few words: its value on the split its step judges (verify: the sealed test split),
+    named when it is not the search split, so that a run feasible on the search split and infeasible
+    where the gate looks does not read as a contradiction."""
     if not row.ok:
         return f"{row.key} {row.status}"
-    score, wall = row.scores.search, row.wall_seconds
+    score, wall = row.on(row.split) or row.scores.search, row.wall_seconds
+    where = "" if row.on(row.split) is None or row.split is Split.SEARCH else f" on {row.split}"
     feasible = "" if score.feasible else " infeasible"
-    return f"{row.key} {score.metric:.5g}{feasible}" + (f" ({wall:.0f}s)" if wall is not None else "")
+    return f"{row.key} {score.metric:.5g}{where}{feasible}" + (f" ({wall:.0f}s)" if wall is not None else "")
 
 
 class TrialProgress:
