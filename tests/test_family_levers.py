@@ -888,6 +888,10 @@ def test_the_auxiliary_reports_a_stress_set_and_the_share_of_starts_breaking_a_c
     expert_thrust = fly(train.PROBLEM, MinEnergyFeedback(train.PROBLEM), starts, goals).thrust
     held_out = SimpleNamespace(starts=starts, goals=goals, trajectory_thrust=lambda: expert_thrust)
     off = train.safety_filter({**config, "RUNTIME_CBF_FILTER": False})
+    flown_starts, flown_goals, draws = starts, goals, ()
+    if name == "docking-constrained":  # each level flies DISPERSED_FLIGHTS flights: here 2 draws a start
+        monkeypatch.setattr(train, "DISPERSED_FLIGHTS", 2 * len(starts) - 1)
+        flown_starts, flown_goals, draws = np.concatenate([starts] * 2), np.concatenate([goals] * 2), (2,)
     metrics = train.evaluate(policy, held_out, off)
     nominal = train.evaluate(policy, held_out, off, dispersed=False)
     assert {k: v for k, v in metrics.items() if k in nominal} == nominal
@@ -903,14 +907,21 @@ def test_the_auxiliary_reports_a_stress_set_and_the_share_of_starts_breaking_a_c
     for key, spreads in (("dispersed", train.DISPERSIONS), ("dispersed_3sigma", stress)):
         level = metrics[key]
         assert level["dispersions"] == spreads
-        assert level == train.dispersed_metrics(train.fly(policy, starts, goals, off, spreads), spreads)
+        flown = train.fly(policy, flown_starts, flown_goals, off, spreads)
+        assert level == train.dispersed_metrics(flown, spreads, *draws)
+        # Flight j draws seed DISPERSION_SEED + j: the first draw of every start is its one-draw flight.
+        once = train.fly(policy, starts, goals, off, spreads)
+        np.testing.assert_array_equal(flown.terminal_distance[: len(starts)], once.terminal_distance)
+        assert draws == () or not np.array_equal(
+            flown.terminal_distance[len(starts) :], once.terminal_distance
+        )
         assert set(level["breaking_starts"]) == set(level["deepest"]) == constraints
         breaking = level["breaking_starts"]
         assert (
             0
             < max(breaking.values())
             <= level["violating_starts"]
-            <= min(len(starts), sum(breaking.values()))
+            <= min(len(flown_starts), sum(breaking.values()))
         )
         assert all((level["deepest"][c] > 0) == (n > 0) for c, n in breaking.items())
         if name == "docking":  # one constraint: the starts breaking it are the violating ones
@@ -919,24 +930,26 @@ def test_the_auxiliary_reports_a_stress_set_and_the_share_of_starts_breaking_a_c
         metrics["dispersed_3sigma"]["mean_terminal_distance"]
         != metrics["dispersed"]["mean_terminal_distance"]
     )
-    flown = train.fly(policy, starts, goals, off, train.DISPERSIONS)
+    flown = train.fly(policy, flown_starts, flown_goals, off, train.DISPERSIONS)
     broken = flown.violation_rate + (
         0 if name == "docking" else flown.speed_violation_rate + flown.cone_violation_rate
     )
-    assert metrics["dispersed_violating_share"] == (broken > 0).sum() / len(starts) > 0
-    assert metrics["dispersed_violating_share"] == metrics["dispersed"]["violating_starts"] / len(starts)
+    assert metrics["dispersed_violating_share"] == (broken > 0).sum() / len(flown_starts) > 0
+    assert metrics["dispersed_violating_share"] == metrics["dispersed"]["violating_starts"] / len(
+        flown_starts
+    )
     # Here every start breaks something at both levels: the share is the 1-sigma level's, never the
     # stress set's, seen with levels that differ.
     counts = {"dispersed": 1, "dispersed_3sigma": 3}
     monkeypatch.setattr(
         train,
         "dispersed_metrics",
-        lambda flight, spreads: {
+        lambda flight, spreads, *draws: {
             "violating_starts": counts["dispersed" if spreads == train.DISPERSIONS else "dispersed_3sigma"],
             "success_rate": 1.0,
         },
     )
-    assert train.evaluate(policy, held_out, off)["dispersed_violating_share"] == 1 / len(starts)
+    assert train.evaluate(policy, held_out, off)["dispersed_violating_share"] == 1 / len(flown_starts)
 
 
 @pytest.mark.parametrize("name", DOCKING_FAMILIES)
