@@ -53,7 +53,13 @@ TASKS = {
 ALGOS = ("ppo", "sac", "residual-ppo", "bc-ppo")
 BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples use 2000 to 50000)
 BOOTSTRAP_SEED = 0
-RECIPE_KEYS = ("critic_warmup", "reward", "log_std_init", "lr_anneal")  # recipe()'s, in a curve's first point
+RECIPE_KEYS = (
+    "critic_warmup",
+    "reward",
+    "log_std_init",
+    "learning_rate",
+    "lr_anneal",
+)  # recipe()'s, in a curve's first point
 MODEL, STATISTICS = "model.zip", "vecnormalize.pkl"  # a seed's checkpoint, in its work directory
 METRIC_FLOOR = 1e-9  # the curves are on a log axis: a metric below this is drawn at it (the laws reach ~1e-7)
 
@@ -84,6 +90,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--log-std-init", type=float, default=None, help="the policy's initial log std (the zoo's: -2)"
     )
     parser.add_argument(
+        "--learning-rate",
+        type=float,
+        default=None,
+        help="the optimiser's learning rate where not the algo's (the zoo's: 3e-4 for PPO); with --lr-anneal, "
+        "where the schedule starts",
+    )
+    parser.add_argument(
         "--lr-anneal",
         action="store_true",
         help="the learning rate annealed linearly to 0 over --timesteps (the zoo's lin_ schedules), not held; "
@@ -100,6 +113,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         args.timesteps = min(args.timesteps, 2_048)
     if args.timesteps < 1:
         parser.error("--timesteps must be >= 1")
+    if args.learning_rate is not None and not 0 < args.learning_rate < float("inf"):
+        parser.error(f"--learning-rate must be a positive finite number, got {args.learning_rate}")
     args.reward = _weights(parser, args.reward)
     if args.tag is not None and not args.tag.replace("-", "").isalnum():
         parser.error(f"--tag must be letters, digits and '-', got {args.tag!r}")
@@ -130,6 +145,8 @@ def recipe(args: argparse.Namespace) -> dict:
         out["reward"] = args.reward
     if args.log_std_init is not None:
         out["log_std_init"] = args.log_std_init
+    if args.learning_rate is not None:
+        out["learning_rate"] = args.learning_rate
     if args.lr_anneal:
         out["lr_anneal"] = True
     return out
@@ -196,6 +213,8 @@ class Row:
             params |= self.sb3.SMOKE[self.kind]
         if self.args.log_std_init is not None:
             params["policy_kwargs"] = {**params["policy_kwargs"], "log_std_init": self.args.log_std_init}
+        if self.args.learning_rate is not None:
+            params["learning_rate"] = self.args.learning_rate
         return params
 
     def load(self, work: Path, venv):

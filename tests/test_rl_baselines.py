@@ -204,3 +204,21 @@ def test_an_annealed_learning_rate_falls_to_zero_over_the_whole_budget_not_over_
         model.learn(chunk, reset_num_timesteps=False)
         rates.append(model.policy.optimizer.param_groups[0]["lr"])
     assert rates == pytest.approx([5e-4, 0.0])
+
+
+def test_a_learning_rate_set_for_a_row_trains_at_it_and_is_part_of_its_recipe(tmp_path):
+    """--learning-rate (cloning-initialised PPO's next probe: a rate two orders below the zoo's, so that
+    PPO's updates keep the actor near the clone): the optimiser runs at it, the curve records it and a
+    checkpoint trained at it is refused for another rate."""
+    from stable_baselines3 import PPO
+
+    common = ["--algo", "ppo", "--seeds", "0", "--eval-every", "128", "--smoke", "--tag", "lr"]
+    result = run(tmp_path, *common, "--timesteps", "128", "--learning-rate", "1e-5")
+    assert result["curves"][0]["curve"][0]["learning_rate"] == 1e-5
+    model = PPO.load(tmp_path / "work" / "docking" / "ppo-lr" / "s0" / "model.zip", device="cpu")
+    assert model.policy.optimizer.param_groups[0]["lr"] == pytest.approx(1e-5)
+    with pytest.raises(SystemExit, match="asked for the defaults"):
+        run(tmp_path, *common, "--timesteps", "256")
+    for bad in ("0", "-1e-4", "nan"):
+        with pytest.raises(SystemExit):
+            rl_baselines.parse_args(["--task", "docking", "--algo", "ppo", "--learning-rate", bad])
