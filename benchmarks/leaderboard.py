@@ -46,6 +46,7 @@ and dispersed, partly beside another job), which its row says.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import functools
 import importlib.util
@@ -205,7 +206,7 @@ class Task:
 
     def defaults(self) -> dict:
         """The family's editable block as it stands."""
-        return {name: getattr(self.train, name) for name in self.train.CONFIG_NAMES}
+        return family_defaults(self.train)
 
     def metrics(self, flight) -> dict:
         expert = self.held_out.trajectory_thrust()[: len(flight.terminal_distance)]
@@ -268,12 +269,19 @@ class Task:
         )
 
 
+def family_defaults(train: Any) -> dict:
+    """A family's editable block as it stands (its train.py as a module)."""
+    return {name: getattr(train, name) for name in train.CONFIG_NAMES}
+
+
 @dataclass
 class Entry:
     """A leaderboard row to measure: ``make(seed)`` returns a policy on observations."""
 
     name: str
-    kind: str  # "classical", "bc", "sb3" or "rl" (a long run of benchmarks/rl_baselines.py)
+    # "classical", "bc", "sb3", "rl" (a long run of benchmarks/rl_baselines.py) or "rl-family" (the RL
+    # family's train.py, as the loop runs it)
+    kind: str
     cbf: bool
     make: Any
     source: str
@@ -315,11 +323,13 @@ def with_stop_line(entry: Entry) -> Entry:
     )
 
 
-def flown_filters(task: Task, config: dict) -> dict:
+def flown_filters(task: Task, config: dict, train: Any = None) -> dict:
     """A learned row's filters as :class:`Entry` fields: what its family's own ``safety_filter`` gives
     the recipe (the robust filter at the recipe's k, covariance-sized with the stop line where it asks),
-    so that the row flies as train.py flies it; none on a family without a filter (rendezvous)."""
-    safety = task.train.safety_filter(config) if hasattr(task.train, "safety_filter") else {}
+    so that the row flies as train.py flies it; none on a family without a filter (rendezvous).
+    ``train``: the family's train.py as a module where it is not the task's own (the RL family)."""
+    train = train or task.train
+    safety = train.safety_filter(config) if hasattr(train, "safety_filter") else {}
     bounds = safety.get("cbf_bounds")
     return {
         "cbf": "cbf_margin" in safety,
@@ -493,6 +503,25 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                 **filters,
             )
         )
+    if task.name in RL_FAMILY_RECIPES:
+        family, campaign = RL_FAMILY_RECIPES[task.name]
+        config, budget = audited_recipe(campaign)
+        module = load_train(ROOT / "families" / family)
+        filters = flown_filters(task, {**family_defaults(module), **config}, module)
+        rows.append(
+            Entry(
+                RL_FAMILY_ROW,
+                "rl-family",
+                filters.pop("cbf"),
+                lambda seed, c=config, b=budget, f=family: trained_bc(
+                    task, work, RL_FAMILY_ROW, c, seed, b, f
+                ),
+                f"{campaign} (its audit's promoted recipe)",
+                config,
+                budget,
+                **filters,
+            )
+        )
     for algo in ("ppo", "sac"):
         rows.append(
             Entry(
@@ -520,6 +549,11 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
             )
     return rows
 
+
+# Issue 60, item 3: the RL family's recipe as its audit promoted it (PPO tuned through the family
+# contract), trained by that family's train.py under its campaign's budget, flown as it flies it.
+RL_FAMILY_ROW = "PPO tuned by Optuna TPE (RL family)"
+RL_FAMILY_RECIPES = {"docking": ("docking-rl", "results/rl-family/docking-rl-tpe")}
 
 FIRST_CAMPAIGN = "first GP campaign (BC)"  # AGENT_RECIPES: the first key-free campaign's certified recipe
 # Issue 58's learned robust row: a recipe written by hand and audited on the sealed split (its reseeds
@@ -596,6 +630,7 @@ ROW_ORDER = (
     "SB3 PPO",
     "SB3 SAC",
     *RL_ROWS.values(),
+    RL_FAMILY_ROW,
 )
 
 
@@ -608,18 +643,28 @@ def slug(name: str) -> str:
     return "".join(c if c.isalnum() else "-" for c in name.lower()).strip("-")
 
 
-def trained_bc(task: Task, work: Path, name: str, config: dict, seed: int, time_budget: float | None = None):
-    """The family's train.py with ``config`` patched into its editable block, trained at ``seed`` and
-    granted ``time_budget`` training seconds when given (as the loop grants them), once: the policy is
-    kept under ``work``, beside its runs.jsonl record; loaded as a policy on observations."""
+def trained_bc(
+    task: Task,
+    work: Path,
+    name: str,
+    config: dict,
+    seed: int,
+    time_budget: float | None = None,
+    family: str | None = None,
+):
+    """A family's train.py (the task's own, or ``family``'s: the RL family on docking) with ``config``
+    patched into its editable block, trained at ``seed`` and granted ``time_budget`` training seconds
+    when given (as the loop grants them), once: the policy is kept under ``work``, beside its runs.jsonl
+    record; loaded by the family's own ``load_policy`` as a policy on observations."""
+    family = family or task.name
+    module = task.train if family == task.name else load_train(ROOT / "families" / family)
     run = work / task.name / slug(name) / (f"s{seed}" + (f"-budget{time_budget:g}" if time_budget else ""))
-    saved = run / "policy.pt"
-    if saved.exists():
-        policy, record = task.train.load_policy(saved)
+    with contextlib.suppress(FileNotFoundError):  # not trained yet
+        policy, record = module.load_policy(run)
         if all(record["config"].get(k) == v for k, v in config.items()):
             return policy.act
     run.mkdir(parents=True, exist_ok=True)
-    source = (ROOT / "families" / task.name / "train.py").read_text(encoding="utf-8")
+    source = (ROOT / "families" / family / "train.py").read_text(encoding="utf-8")
     (run / "train.py").write_text(patch(source, config), encoding="utf-8")
     env = {k: v for k, v in os.environ.items() if k != TIME_BUDGET_ENV}
     if time_budget is not None:
@@ -636,7 +681,7 @@ def trained_bc(task: Task, work: Path, name: str, config: dict, seed: int, time_
             stderr=subprocess.STDOUT,
         )
     print(f"[train] {task.name}: {name} at seed {seed}: {time.perf_counter() - started:.0f} s", flush=True)
-    return task.train.load_policy(saved)[0].act
+    return module.load_policy(run)[0].act
 
 
 @functools.cache  # one module per script: the rows and seeds share it
@@ -954,7 +999,7 @@ def row(task: Task, entry: Entry, measured: dict, timing: dict | None) -> dict:
             "iqm": _rl_baselines().iqm_interval(values),
             "command": entry.rl["command"],
         }
-    if entry.kind == "bc":
+    if entry.kind in ("bc", "rl-family"):
         campaign = (
             family_best_campaign(task.name)
             if entry.name == "family best (BC)"

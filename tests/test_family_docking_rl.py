@@ -298,6 +298,13 @@ def test_a_budgeted_run_is_cut_by_the_clock_and_writes_the_docking_record_on_bot
     assert steps[-1] == 100 and steps == sorted(set(steps)) and set(steps) <= {25, 50, 75, 100}
     assert {path.name for path in out.iterdir()} == {"model.zip", "vecnormalize.pkl", "run.json"}
     assert json.loads((out / "run.json").read_text())["record"] == record
+    # Loaded as the leaderboard loads it, the saved agent flies the sealed starts to the record's score.
+    trained = load_train(family / "train.py", "docking_rl_copy_reloaded")
+    agent, saved = trained.load_policy(out)
+    assert saved["record"] == record and saved["config"] == record["config"]
+    test = trained.evaluation_set(trained.TASK, trained.N_TEST, problem=trained.PROBLEM, split="test")
+    reflown = trained.evaluate(agent.act, test, trained.safety_filter(saved["config"]), dispersed=False)
+    assert reflown["score"] == pytest.approx(record["splits"]["test"]["score"], rel=1e-12, abs=1e-15)
 
 
 @pytest.mark.slow

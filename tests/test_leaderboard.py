@@ -225,6 +225,27 @@ def test_the_robust_hand_recipe_row_is_its_audits_promoted_recipe_flown_as_train
         assert entry.stop_line == flown.get("cbf_stop_line", False), switches
 
 
+@pytest.mark.needs("families", "sb3")
+def test_the_rl_family_row_is_its_audits_promoted_recipe_trained_by_the_rl_familys_train_py():
+    """Issue 60, item 3 on the leaderboard: the recipe the RL family's TPE arm promoted, at the budget
+    its campaign granted, trained by families/docking-rl's train.py and flown through the filters that
+    family's safety_filter gives it (not the docking family's)."""
+    board = leaderboard()
+    task = board.Task.load("docking", 2)
+    entry = next(
+        e for e in board.entries(task, ROOT / "runs" / "leaderboard", [1]) if e.name == board.RL_FAMILY_ROW
+    )
+    family, campaign = board.RL_FAMILY_RECIPES["docking"]
+    verify = json.loads((ROOT / campaign / "audit.json").read_text(encoding="utf-8"))["verify"]
+    promoted = [c for c in verify["candidates"] if c["config_id"] == verify["promoted"]]
+    assert entry.kind == "rl-family" and entry.config == promoted[0]["config"] and entry.time_budget == 300
+    assert entry.source.startswith(campaign)
+    rl = board.load_train(ROOT / "families" / family)
+    flown = rl.safety_filter({**board.family_defaults(rl), **entry.config})
+    assert entry.cbf == ("cbf_margin" in flown) and not entry.robust and not entry.navigation
+    assert board.RL_FAMILY_ROW in board.ROW_ORDER
+
+
 def test_the_tube_mpc_row_says_how_each_plan_was_found_and_what_one_plan_costs():
     """The robust MPC's row (issue 58) on two constrained starts: each level keeps the tube MPC's own
     plan counts, the compute column its plan time, and the table says both in words."""

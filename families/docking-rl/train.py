@@ -41,12 +41,14 @@ import contextlib
 import json
 import math
 import os
+import pickle
 import random
 import sys
 import time
 import uuid
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -343,6 +345,19 @@ def flown_policy(config: dict, model: PPO, normalizer: VecNormalize) -> Callable
     if config["POLICY_FORM"] == "residual":
         return residual_policy(base_law(), network, config["RESIDUAL_SCALE"])
     return network
+
+
+def load_policy(path: str | os.PathLike) -> tuple[SimpleNamespace, dict]:
+    """A saved agent (an --out directory) and its run.json; the agent's ``act`` (observations -> env
+    actions, as the BC families' policies have it) flies it as trained (:func:`flown_policy`).
+    VecNormalize's statistics are unpickled without an env: flying only normalises observations."""
+    path = Path(path)
+    run = json.loads((path / "run.json").read_text(encoding="utf-8"))
+    with open(path / "vecnormalize.pkl", "rb") as saved:
+        normalizer = pickle.load(saved)  # our own file, written by main() below
+    normalizer.training = False
+    model = PPO.load(path / "model.zip", device="cpu")
+    return SimpleNamespace(act=flown_policy(run["config"], model, normalizer)), run
 
 
 def fly(act: Callable, starts: np.ndarray, goals: np.ndarray, safety: dict, dispersions=None) -> Flight:
