@@ -95,7 +95,10 @@ def test_the_family_passes_the_contract_check_and_poses_the_siblings_problem():
     for name in ("fuel", "robust"):
         assert family.registry["protocols"][name] == docking.registry["protocols"][name]
     assert family.registry["baseline"]["metric"] is None  # measured by a campaign, not assumed
-    assert family.best is None
+    # its best is only what an audit promoted: the TPE arm's reseeded recipe (results/rl-family)
+    verify = json.loads((ROOT / "results/rl-family/docking-rl-tpe/audit.json").read_text())["verify"]
+    promoted = next(c for c in verify["candidates"] if c["config_id"] == verify["promoted"])
+    assert family.best["config"] == promoted["config"] and family.best["time_budget"] == 300
     source = (FAMILY / "train.py").read_text()  # it stands alone: no other family's code, no path tricks
     imported = re.findall(r"^(?:from|import) (\S+)", source, re.M)
     assert imported and not {m.split(".")[0] for m in imported} & {"families", "train", "tests"}
