@@ -496,7 +496,7 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                 name,
                 "bc",
                 filters.pop("cbf"),
-                lambda seed, c=config, n=name, b=budget: trained_bc(task, work, n, c, seed, b),
+                lambda seed, c=config, n=name, b=budget: trained_by_family(task, work, n, c, seed, b),
                 source,
                 config,
                 budget,
@@ -513,7 +513,7 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
                 RL_FAMILY_ROW,
                 "rl-family",
                 filters.pop("cbf"),
-                lambda seed, c=config, b=budget, f=family: trained_bc(
+                lambda seed, c=config, b=budget, f=family: trained_by_family(
                     task, work, RL_FAMILY_ROW, c, seed, b, f
                 ),
                 f"{campaign} (its audit's promoted recipe)",
@@ -643,7 +643,7 @@ def slug(name: str) -> str:
     return "".join(c if c.isalnum() else "-" for c in name.lower()).strip("-")
 
 
-def trained_bc(
+def trained_by_family(
     task: Task,
     work: Path,
     name: str,

@@ -88,19 +88,21 @@ def test_a_committed_row_regenerates_on_its_subset(task, controller):
 
 @pytest.mark.needs("families")
 def test_a_family_best_is_trained_under_the_budget_it_was_certified_under(tmp_path):
-    """trained_bc grants train.py the budget as the loop does, and keeps the policy of each budget
+    """trained_by_family grants train.py the budget as the loop does, and keeps the policy of each budget
     (or none) apart: one trained under another is never reused."""
     board = leaderboard()
     task = board.Task.load("rendezvous", 16)
     config = {"N_DEMOS": 64, "EPOCHS": 2, "HIDDEN_DIM": 16}
-    board.trained_bc(task, tmp_path, "b", config, 0)
-    board.trained_bc(task, tmp_path, "b", config, 0, 30.0)
+    board.trained_by_family(task, tmp_path, "b", config, 0)
+    board.trained_by_family(task, tmp_path, "b", config, 0, 30.0)
     plain, budgeted = (tmp_path / "rendezvous" / "b" / run for run in ("s0", "s0-budget30"))
     assert "time_budget" not in json.loads((plain / "runs.jsonl").read_text())
     record = json.loads((budgeted / "runs.jsonl").read_text())
     assert record["time_budget"] == 30.0 and record["budget_exhausted"] is False
     trained = (budgeted / "policy.pt").stat().st_mtime_ns
-    board.trained_bc(task, tmp_path, "b", config, 0, 30.0)  # kept: the same recipe under the same budget
+    board.trained_by_family(
+        task, tmp_path, "b", config, 0, 30.0
+    )  # kept: the same recipe under the same budget
     assert (budgeted / "policy.pt").stat().st_mtime_ns == trained
 
 
