@@ -71,7 +71,10 @@ def _copy_campaign(source: Path, target: Path) -> None:
 
 
 def _recorded_dirs(campaign: Path) -> list[str]:
-    """The other campaigns the report reads by a recorded path: the audit's random arms."""
+    """The other campaigns the report reads by a recorded path: the audit's random arms (none for a
+    campaign not audited yet, whose report is its search alone)."""
+    if not (campaign / "audit.json").exists():
+        return []
     audit = json.loads((campaign / "audit.json").read_text(encoding="utf-8"))
     return [
         part["dir"] for part in audit.values() if isinstance(part, dict) and isinstance(part.get("dir"), str)
