@@ -323,12 +323,11 @@ def with_stop_line(entry: Entry) -> Entry:
     )
 
 
-def flown_filters(task: Task, config: dict, train: Any = None) -> dict:
-    """A learned row's filters as :class:`Entry` fields: what its family's own ``safety_filter`` gives
-    the recipe (the robust filter at the recipe's k, covariance-sized with the stop line where it asks),
-    so that the row flies as train.py flies it; none on a family without a filter (rendezvous).
-    ``train``: the family's train.py as a module where it is not the task's own (the RL family)."""
-    train = train or task.train
+def flown_filters(train: Any, config: dict) -> dict:
+    """A learned row's filters as :class:`Entry` fields: what its family's own ``safety_filter`` (in
+    ``train``, its train.py as a module) gives the recipe (the robust filter at the recipe's k,
+    covariance-sized with the stop line where it asks), so that the row flies as train.py flies it;
+    none on a family without a filter (rendezvous)."""
     safety = train.safety_filter(config) if hasattr(train, "safety_filter") else {}
     bounds = safety.get("cbf_bounds")
     return {
@@ -478,45 +477,29 @@ def entries(task: Task, work: Path, seeds: list[int], mpc_starts: int | None = N
     ]
     family_json = json.loads((ROOT / "families" / task.name / "family.json").read_text(encoding="utf-8"))
     best = family_json.get("best")
-    recipes = []
+    recipes = []  # (name, source, config, budget, the train.py module that trains it)
     if best:  # trained under the budget it was certified under, if any: EPOCHS may not fit in it
         recipe = (best["config"], best.get("time_budget"))
-        recipes.append(("family best (BC)", f"families/{task.name}/family.json best", *recipe))
+        recipes.append(("family best (BC)", f"families/{task.name}/family.json best", *recipe, task.train))
     source, config = AGENT_RECIPES[task.name]
-    recipes.append((FIRST_CAMPAIGN, source, config, None))
-    if task.name in ROBUST_RECIPES:
-        campaign = ROBUST_RECIPES[task.name]
-        recipes.append(
-            (ROBUST_RECIPE, f"{campaign} (its audit's promoted recipe)", *audited_recipe(campaign))
-        )
-    for name, source, config, budget in recipes:
-        filters = flown_filters(task, {**task.defaults(), **config})
+    recipes.append((FIRST_CAMPAIGN, source, config, None, task.train))
+    for name, by_task in ((ROBUST_RECIPE, ROBUST_RECIPES), (RL_FAMILY_ROW, RL_FAMILY_RECIPES)):
+        if task.name in by_task:
+            family, campaign = by_task[task.name]
+            train = task.train if family == task.name else load_train(ROOT / "families" / family)
+            source = f"{campaign} (its audit's promoted recipe)"
+            recipes.append((name, source, *audited_recipe(campaign), train))
+    for name, source, config, budget, train in recipes:
+        filters = flown_filters(train, {**family_defaults(train), **config})
         rows.append(
             Entry(
                 name,
-                "bc",
+                "bc" if train is task.train else "rl-family",
                 filters.pop("cbf"),
-                lambda seed, c=config, n=name, b=budget: trained_by_family(task, work, n, c, seed, b),
-                source,
-                config,
-                budget,
-                **filters,
-            )
-        )
-    if task.name in RL_FAMILY_RECIPES:
-        family, campaign = RL_FAMILY_RECIPES[task.name]
-        config, budget = audited_recipe(campaign)
-        module = load_train(ROOT / "families" / family)
-        filters = flown_filters(task, {**family_defaults(module), **config}, module)
-        rows.append(
-            Entry(
-                RL_FAMILY_ROW,
-                "rl-family",
-                filters.pop("cbf"),
-                lambda seed, c=config, b=budget, f=family: trained_by_family(
-                    task, work, RL_FAMILY_ROW, c, seed, b, f
+                lambda seed, c=config, n=name, b=budget, t=train: trained_by_family(
+                    task, work, n, c, seed, b, t
                 ),
-                f"{campaign} (its audit's promoted recipe)",
+                source,
                 config,
                 budget,
                 **filters,
@@ -559,7 +542,9 @@ FIRST_CAMPAIGN = "first GP campaign (BC)"  # AGENT_RECIPES: the first key-free c
 # Issue 58's learned robust row: a recipe written by hand and audited on the sealed split (its reseeds
 # passed the robust protocol's gate), not one the agent found from cold; its row says which campaign.
 ROBUST_RECIPE = "robust hand recipe (BC)"
-ROBUST_RECIPES = {"docking-constrained": "results/agent-levers/docking-constrained-best-nav-robust"}
+ROBUST_RECIPES = {
+    "docking-constrained": ("docking-constrained", "results/agent-levers/docking-constrained-best-nav-robust")
+}  # task: (the family that trains it, its campaign), as RL_FAMILY_RECIPES
 
 
 def audited_recipe(campaign: str) -> tuple[dict, float | None]:
@@ -650,21 +635,21 @@ def trained_by_family(
     config: dict,
     seed: int,
     time_budget: float | None = None,
-    family: str | None = None,
+    train: Any = None,
 ):
-    """A family's train.py (the task's own, or ``family``'s: the RL family on docking) with ``config``
-    patched into its editable block, trained at ``seed`` and granted ``time_budget`` training seconds
-    when given (as the loop grants them), once: the policy is kept under ``work``, beside its runs.jsonl
-    record; loaded by the family's own ``load_policy`` as a policy on observations."""
-    family = family or task.name
-    module = task.train if family == task.name else load_train(ROOT / "families" / family)
+    """A family's train.py (``train``, as a module: the task's own by default, the RL family's for its
+    row on docking) with ``config`` patched into its editable block, trained at ``seed`` and granted
+    ``time_budget`` training seconds when given (as the loop grants them), once: the policy is kept under
+    ``work``, beside its runs.jsonl record; loaded by the family's own ``load_policy`` as a policy on
+    observations."""
+    module = train or task.train
     run = work / task.name / slug(name) / (f"s{seed}" + (f"-budget{time_budget:g}" if time_budget else ""))
     with contextlib.suppress(FileNotFoundError):  # not trained yet
         policy, record = module.load_policy(run)
         if all(record["config"].get(k) == v for k, v in config.items()):
             return policy.act
     run.mkdir(parents=True, exist_ok=True)
-    source = (ROOT / "families" / family / "train.py").read_text(encoding="utf-8")
+    source = Path(module.__file__).read_text(encoding="utf-8")
     (run / "train.py").write_text(patch(source, config), encoding="utf-8")
     env = {k: v for k, v in os.environ.items() if k != TIME_BUDGET_ENV}
     if time_budget is not None:

@@ -53,13 +53,8 @@ TASKS = {
 ALGOS = ("ppo", "sac", "residual-ppo", "bc-ppo")
 BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples use 2000 to 50000)
 BOOTSTRAP_SEED = 0
-RECIPE_KEYS = (
-    "critic_warmup",
-    "reward",
-    "log_std_init",
-    "learning_rate",
-    "lr_anneal",
-)  # recipe()'s, in a curve's first point
+# recipe()'s keys, in a curve's first point
+RECIPE_KEYS = ("critic_warmup", "reward", "log_std_init", "learning_rate", "lr_anneal")
 MODEL, STATISTICS = "model.zip", "vecnormalize.pkl"  # a seed's checkpoint, in its work directory
 METRIC_FLOOR = 1e-9  # the curves are on a log axis: a metric below this is drawn at it (the laws reach ~1e-7)
 

@@ -100,9 +100,8 @@ def test_a_family_best_is_trained_under_the_budget_it_was_certified_under(tmp_pa
     record = json.loads((budgeted / "runs.jsonl").read_text())
     assert record["time_budget"] == 30.0 and record["budget_exhausted"] is False
     trained = (budgeted / "policy.pt").stat().st_mtime_ns
-    board.trained_by_family(
-        task, tmp_path, "b", config, 0, 30.0
-    )  # kept: the same recipe under the same budget
+    # kept: the same recipe under the same budget
+    board.trained_by_family(task, tmp_path, "b", config, 0, 30.0)
     assert (budgeted / "policy.pt").stat().st_mtime_ns == trained
 
 
@@ -199,12 +198,13 @@ def test_the_robust_hand_recipe_row_is_its_audits_promoted_recipe_flown_as_train
     task = board.Task.load("docking-constrained", 2)
     work = ROOT / "runs" / "leaderboard"
     entry = next(e for e in board.entries(task, work, [1]) if e.name == board.ROBUST_RECIPE)
-    campaign = ROOT / board.ROBUST_RECIPES["docking-constrained"]
+    family, recorded = board.ROBUST_RECIPES["docking-constrained"]
+    campaign = ROOT / recorded
     verify = json.loads((campaign / "audit.json").read_text(encoding="utf-8"))["verify"]
     promoted = [c for c in verify["candidates"] if c["config_id"] == verify["promoted"]]
     assert entry.kind == "bc" and entry.config == promoted[0]["config"] and entry.time_budget == 600
     assert entry.cbf and entry.robust and entry.navigation
-    assert entry.source.startswith(board.ROBUST_RECIPES["docking-constrained"])
+    assert family == "docking-constrained" and entry.source.startswith(recorded)
     # Any learned row flies the filters its train.py's safety_filter would give it: the robust filter
     # at the recipe's own k behind the filter's switch, covariance-sized with the stop line where asked.
     source, config = board.AGENT_RECIPES["docking-constrained"]

@@ -23,8 +23,9 @@ def _outcome(row: TrialRow) -> str:
     where the gate looks does not read as a contradiction."""
     if not row.ok:
         return f"{row.key} {row.status}"
-    score, wall = row.on(row.split) or row.scores.search, row.wall_seconds
-    where = "" if row.on(row.split) is None or row.split is Split.SEARCH else f" on {row.split}"
+    judged, wall = row.on(row.split), row.wall_seconds
+    score = judged or row.scores.search
+    where = f" on {row.split}" if judged is not None and row.split is not Split.SEARCH else ""
     feasible = "" if score.feasible else " infeasible"
     return f"{row.key} {score.metric:.5g}{where}{feasible}" + (f" ({wall:.0f}s)" if wall is not None else "")
 
