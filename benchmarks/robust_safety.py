@@ -222,7 +222,11 @@ def retimed_note(results: list[dict]) -> list[str]:
     for r in results:
         if "retimed_by" in r:
             by.setdefault(r["retimed_by"], []).append(r["controller"])
-    return [f"µs/step of {', '.join(names)} measured again, alone, by `{c}`." for c, names in by.items()]
+    every = len(by) == 1 and all("retimed_by" in r for r in results)
+    return [
+        f"µs/step of {'every row' if every else ', '.join(names)} measured again, alone, by `{c}`."
+        for c, names in by.items()
+    ]
 
 
 def markdown(task: str, results: list[dict]) -> str:

@@ -77,3 +77,12 @@ def test_a_short_run_writes_every_row_at_every_level(tmp_path):
         robust_safety.main(["--starts", "3", "--out", str(tmp_path), "--retime"])
     with pytest.raises(SystemExit, match="no measured row"):
         robust_safety.main(["--starts", "3", "--out", str(tmp_path / "empty"), "--rows", "tube", "--retime"])
+
+
+def test_retimed_note_names_the_rows_or_says_every_row():
+    rows = [{"controller": "a", "retimed_by": "cmd"}, {"controller": "b"}]
+    assert robust_safety.retimed_note(rows) == ["µs/step of a measured again, alone, by `cmd`."]
+    rows[1]["retimed_by"] = "cmd"
+    assert robust_safety.retimed_note(rows) == ["µs/step of every row measured again, alone, by `cmd`."]
+    rows[1]["retimed_by"] = "other"
+    assert len(robust_safety.retimed_note(rows)) == 2
