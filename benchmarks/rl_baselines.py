@@ -55,7 +55,9 @@ BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples 
 BOOTSTRAP_SEED = 0
 # recipe()'s keys, in a curve's first point
 RECIPE_KEYS = ("critic_warmup", "reward", "log_std_init", "learning_rate", "lr_anneal")
-MODEL, STATISTICS = "model.zip", "vecnormalize.pkl"  # a seed's checkpoint, in its work directory
+# a seed's checkpoint, in its work directory; REPLAY: an off-policy row's replay buffer, which SB3's
+# model.save leaves out and without which a resumed SAC would learn from an empty buffer
+MODEL, STATISTICS, REPLAY = "model.zip", "vecnormalize.pkl", "replay.pkl"
 METRIC_FLOOR = 1e-9  # the curves are on a log axis: a metric below this is drawn at it (the laws reach ~1e-7)
 
 
@@ -217,7 +219,10 @@ class Row:
         from stable_baselines3.common.vec_env import VecNormalize
 
         normalizer = VecNormalize.load(str(work / STATISTICS), venv)
-        return self.sb3.ALGOS[self.kind].load(work / MODEL, env=normalizer, device="cpu"), normalizer
+        model = self.sb3.ALGOS[self.kind].load(work / MODEL, env=normalizer, device="cpu")
+        if hasattr(model, "load_replay_buffer"):
+            model.load_replay_buffer(work / REPLAY)
+        return model, normalizer
 
     def policy(self, model, normalizer):
         """The trained row as a policy on observations (deterministic; the base added back for a residual)."""
@@ -332,14 +337,15 @@ def train_seed(row: Row, seed: int) -> dict:
         if warming:  # the critic learns the clone's values before the actor moves (module docstring)
             chunk = min(chunk, warmup - model.num_timesteps)
         if chunk:
-            for parameter in actor_parameters(model):
-                parameter.requires_grad_(not warming)
+            frozen = actor_parameters(model) if warming else []
+            for parameter in frozen:
+                parameter.requires_grad_(False)
             if args.lr_anneal:
                 anneal(model, params["learning_rate"], args.timesteps, chunk)
             started = time.perf_counter()
             model.learn(chunk, reset_num_timesteps=False, progress_bar=False)
             spent += time.perf_counter() - started
-            for parameter in actor_parameters(model):
+            for parameter in frozen:
                 parameter.requires_grad_(True)
         normalizer.training = False
         metrics = evaluate(_Act(row.policy(model, normalizer)))
@@ -353,6 +359,8 @@ def train_seed(row: Row, seed: int) -> dict:
         }
         model.save(model_path)
         normalizer.save(str(stats_path))
+        if hasattr(model, "save_replay_buffer"):
+            model.save_replay_buffer(work / REPLAY)
         with curve_path.open("a", encoding="utf-8") as log:  # appended after the checkpoint it scores
             log.write(json.dumps(point) + "\n")
         points.append(point)

@@ -52,6 +52,20 @@ def test_a_longer_budget_resumes_each_seed_from_its_checkpoint(tmp_path):
     assert [json.loads(line) for line in log] == after
 
 
+def test_sac_trains_scores_and_resumes_with_its_replay_buffer(tmp_path):
+    common = ["--algo", "sac", "--seeds", "0", "--eval-every", "128", "--smoke"]
+    first = run(tmp_path, *common, "--timesteps", "256")
+    assert first["env_steps"] == 256 and len(first["metric_per_seed"]) == 1
+    work = tmp_path / "work" / "docking" / "sac" / "s0"
+    again = run(tmp_path, *common, "--timesteps", "384")
+    assert again["curves"][0]["curve"][: len(first["curves"][0]["curve"])] == first["curves"][0]["curve"]
+    args = rl_baselines.parse_args(["--task", "docking", "--algo", "sac", "--smoke"])
+    row = rl_baselines.Row(args)
+    model, _ = row.load(work, row.envs(0, 1))
+    # every transition of the 384 steps, the 256 before the resume included, is in the saved buffer
+    assert model.num_timesteps == 384 and model.replay_buffer.size() == 384
+
+
 def test_residual_ppo_flies_the_law_plus_its_bounded_correction(tmp_path):
     args = rl_baselines.parse_args(
         ["--task", "docking", "--algo", "residual-ppo", "--smoke", "--residual-scale", "0.1"]
