@@ -53,6 +53,7 @@ TASKS = {
 ALGOS = ("ppo", "sac", "residual-ppo", "bc-ppo")
 BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples use 2000 to 50000)
 BOOTSTRAP_SEED = 0
+SMOKE_STARTS = 8  # --smoke: the starts each split is scored on (plumbing only)
 # recipe()'s keys, in a curve's first point
 RECIPE_KEYS = ("critic_warmup", "reward", "log_std_init", "learning_rate", "lr_anneal")
 # a seed's checkpoint, in its work directory; REPLAY: an off-policy row's replay buffer, which SB3's
@@ -104,7 +105,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--work", type=Path, default=ROOT / "runs" / "rl-baselines")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "rl-baselines")
-    parser.add_argument("--smoke", action="store_true", help="2,048 steps and small rollouts: plumbing only")
+    parser.add_argument("--smoke", action="store_true", help="2,048 steps, small rollouts, SMOKE_STARTS starts a split: plumbing only")
     args = parser.parse_args(argv)
     if args.smoke:
         args.timesteps = min(args.timesteps, 2_048)
@@ -213,6 +214,14 @@ class Row:
         if self.args.learning_rate is not None:
             params["learning_rate"] = self.args.learning_rate
         return params
+
+    def eval_set(self, split: str, dispersed: bool = True):
+        """The family's evaluation on ``split``, through the filter the row trains with; --smoke scores
+        only the first SMOKE_STARTS starts (a cold cache builds constrained experts' sets slowly)."""
+        count = SMOKE_STARTS if self.args.smoke else None
+        return self.sb3.EvalSet(
+            self.family, self.problem_spec["cbf"], split, dispersed=dispersed, count=count
+        )
 
     def load(self, work: Path, venv):
         """The checkpoint in ``work``: the model, and VecNormalize's statistics wrapped around ``venv``."""
@@ -329,7 +338,7 @@ def train_seed(row: Row, seed: int) -> dict:
         if args.algo == "residual-ppo":
             zero_residual(model)
     warmup = args.critic_warmup if args.algo == "bc-ppo" else 0
-    evaluate = row.sb3.EvalSet(row.family, row.problem_spec["cbf"], dispersed=False)
+    evaluate = row.eval_set("search", dispersed=False)
     while model.num_timesteps < args.timesteps or not points:
         # the first point is the policy before learning (the base law, the clone): where RL starts
         chunk = min(args.eval_every, args.timesteps - model.num_timesteps) if points else 0
@@ -384,7 +393,7 @@ def sealed_score(row: Row, policy) -> dict:
     """The family's metrics of ``policy`` on its sealed test split (every start): its metric, success,
     energy over the expert's (``effort_ratio``) and the dispersed success at 1 and 3 sigma, where
     the family reports them."""
-    metrics = row.sb3.EvalSet(row.family, row.problem_spec["cbf"], split="test")(_Act(policy))
+    metrics = row.eval_set("test")(_Act(policy))
     score = {
         key: metrics[key] for key in (row.family.METRIC, "success_rate", "effort_ratio") if key in metrics
     }

@@ -233,16 +233,20 @@ class EvalSet:
     ``dispersed=False`` skips the docking families' Monte Carlo auxiliary (a learning curve needs only
     the nominal metric)."""
 
-    def __init__(self, family, cbf: bool, split: str = "search", dispersed: bool = True):
-        self.family, self.cbf, self.dispersed = family, cbf, dispersed
-        count = {"search": family.N_EVAL, "test": family.N_TEST}[split]
+    def __init__(
+        self, family, cbf: bool, split: str = "search", dispersed: bool = True, count: int | None = None
+    ):
+        # the filter the training envs fly (training_envs), as the families' fly keywords
+        self.safety = {"cbf_margin": family.PROBLEM.margin} if cbf else {}
+        self.family, self.dispersed = family, dispersed
+        count = count or {"search": family.N_EVAL, "test": family.N_TEST}[split]
         self.held_out = evaluation_set(family.TASK, count, problem=family.PROBLEM, split=split)
         self.starts, self.goals = self.held_out.starts, self.held_out.goals
 
     def __call__(self, policy) -> dict:
         if self.family.TASK == "rendezvous":
             return self.family.evaluate(policy, self.held_out)
-        return self.family.evaluate(policy, self.held_out, self.cbf, dispersed=self.dispersed)
+        return self.family.evaluate(policy, self.held_out, self.safety, dispersed=self.dispersed)
 
 
 class SB3Policy:

@@ -16,12 +16,12 @@ import rl_baselines
 pytestmark = pytest.mark.needs("rl", "families")
 
 
-def run(tmp_path, *args):
+def run(tmp_path, *args, task="docking"):
     rl_baselines.main(
-        ["--task", "docking", "--work", str(tmp_path / "work"), "--out", str(tmp_path / "out"), *args]
+        ["--task", task, "--work", str(tmp_path / "work"), "--out", str(tmp_path / "out"), *args]
     )
     label = args[args.index("--algo") + 1] + (f"-{args[args.index('--tag') + 1]}" if "--tag" in args else "")
-    return json.loads((tmp_path / "out" / "docking" / f"{label}.json").read_text())
+    return json.loads((tmp_path / "out" / task / f"{label}.json").read_text())
 
 
 def test_two_seeds_give_per_seed_sealed_scores_an_iqm_inside_them_and_curves(tmp_path):
@@ -137,25 +137,14 @@ def test_a_tagged_recipe_trains_with_its_reward_weights_and_log_std_apart_and_is
     assert again["curves"][0]["curve"][:2] == result["curves"][0]["curve"]
 
 
-def test_residual_ppo_starts_as_the_law_and_every_curve_starts_before_learning(tmp_path):
-    result = run(
-        tmp_path,
-        "--algo",
-        "residual-ppo",
-        "--seeds",
-        "0",
-        "--timesteps",
-        "128",
-        "--eval-every",
-        "128",
-        "--smoke",
-    )
+@pytest.mark.parametrize("task", ["docking", "docking-constrained"])
+def test_residual_ppo_starts_as_the_law_and_every_curve_starts_before_learning(tmp_path, task):
+    args = ["--algo", "residual-ppo", "--seeds", "0", "--timesteps", "128", "--eval-every", "128", "--smoke"]
+    result = run(tmp_path, *args, task=task)
     first = result["curves"][0]["curve"][0]
     assert first["timesteps"] == 0 and first["train_seconds"] == 0.0
-    row = rl_baselines.Row(
-        rl_baselines.parse_args(["--task", "docking", "--algo", "residual-ppo", "--smoke"])
-    )
-    evaluate = row.sb3.EvalSet(row.family, row.problem_spec["cbf"], dispersed=False)
+    row = rl_baselines.Row(rl_baselines.parse_args(["--task", task, "--algo", "residual-ppo", "--smoke"]))
+    evaluate = row.eval_set("search", dispersed=False)
     law = evaluate(rl_baselines._Act(row.base()))
     assert first["metric"] == law[row.family.METRIC]  # a zero correction: the law to the bit
     assert first["success_rate"] == law["success_rate"]
