@@ -306,7 +306,7 @@ def test_an_rl_row_flies_the_checkpoint_its_summary_scored_and_refuses_another(t
     board = leaderboard()
     rl = board.rl_summary(out / "docking" / f"{label}.json")
     assert rl["smoke"] and rl["seeds"] == [0] and rl["checkpoint_steps"]["0"] >= 128
-    task = board.Task.load("docking", None)  # every sealed start, as the summary scored them
+    task = board.Task.load("docking", rl_baselines.SMOKE_STARTS)  # the sealed starts a smoke summary scored
     flight = task.fly(board.trained_rl(task, rl, 0, work), cbf=True)
     summary = json.loads((out / "docking" / f"{label}.json").read_text())
     assert task.metrics(flight)["score"] == pytest.approx(summary["metric_per_seed"][0], rel=1e-9)
