@@ -105,7 +105,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--work", type=Path, default=ROOT / "runs" / "rl-baselines")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "rl-baselines")
-    parser.add_argument("--smoke", action="store_true", help="2,048 steps, small rollouts, SMOKE_STARTS starts a split: plumbing only")
+    parser.add_argument(
+        "--smoke",
+        action="store_true",
+        help="2,048 steps, small rollouts, SMOKE_STARTS starts a split: plumbing only",
+    )
     args = parser.parse_args(argv)
     if args.smoke:
         args.timesteps = min(args.timesteps, 2_048)
