@@ -231,7 +231,7 @@ class EvalSet:
     """A family's evaluation split and its exact closed-loop evaluation, for any ``policy.act``: the
     search split's N_EVAL starts by default, the sealed test split's N_TEST with ``split="test"``.
     ``dispersed=False`` skips the docking families' Monte Carlo auxiliary (a learning curve needs only
-    the nominal metric)."""
+    the nominal metric); ``count`` scores only the split's first ``count`` starts."""
 
     def __init__(
         self, family, cbf: bool, split: str = "search", dispersed: bool = True, count: int | None = None
