@@ -395,9 +395,8 @@ class _Act:
 
 def sealed_score(row: Row, policy) -> dict:
     """The family's metrics of ``policy`` on its sealed test split (every start; --smoke: the first
-    SMOKE_STARTS): its metric, success,
-    energy over the expert's (``effort_ratio``) and the dispersed success at 1 and 3 sigma, where
-    the family reports them."""
+    SMOKE_STARTS): its metric, success, energy over the expert's (``effort_ratio``) and the dispersed
+    success at 1 and 3 sigma, where the family reports them."""
     metrics = row.eval_set("test")(_Act(policy))
     score = {
         key: metrics[key] for key in (row.family.METRIC, "success_rate", "effort_ratio") if key in metrics
