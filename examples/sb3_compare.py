@@ -236,8 +236,7 @@ class EvalSet:
     def __init__(
         self, family, cbf: bool, split: str = "search", dispersed: bool = True, count: int | None = None
     ):
-        # the filter the training envs fly (training_envs), as the families' fly keywords
-        self.safety = {"cbf_margin": family.PROBLEM.margin} if cbf else {}
+        self.safety = filter_keywords(family, cbf)
         self.family, self.dispersed = family, dispersed
         count = count or {"search": family.N_EVAL, "test": family.N_TEST}[split]
         self.held_out = evaluation_set(family.TASK, count, problem=family.PROBLEM, split=split)
@@ -337,6 +336,12 @@ def train_sb3(algo: str, problem: dict, family, evaluate: EvalSet, args) -> dict
     }
 
 
+def filter_keywords(family, cbf: bool) -> dict:
+    """The CBF filter the training envs fly (the family's margin), as keywords of the native env and of
+    the families' ``fly``: the evaluation flies the same filter."""
+    return {"cbf_margin": family.PROBLEM.margin} if cbf else {}
+
+
 def training_envs(problem: dict, family, n_envs: int, args, reward: dict | None = None):
     """The monitored SB3 VecEnv of ``n_envs`` training envs; with the CBF for docking+cbf (the
     family's margin, as CBFSafetyFilter's default); ``reward``, the env's reward weights where they
@@ -356,7 +361,7 @@ def training_envs(problem: dict, family, n_envs: int, args, reward: dict | None 
             env_kwargs={**options, **limits},
             wrapper_class=wrapper,
         )
-    cbf = {"cbf_margin": family.PROBLEM.margin} if problem["cbf"] else {}
+    cbf = filter_keywords(family, problem["cbf"])
     # SB3's algorithms read only is_success (and the terminal observation) from the infos.
     envs = NativeVecEnv(
         problem["env_id"], n_envs, seed=args.seed, info_keys=("is_success",), **options, **cbf, **limits
