@@ -61,7 +61,9 @@ def test_every_task_has_every_kind_of_row_with_the_issues_keys():
             assert min(row["metric_per_seed"]) <= row["iqm"]["iqm"] <= max(row["metric_per_seed"])
             assert row["iqm"]["ci95"][0] <= row["iqm"]["iqm"] <= row["iqm"]["ci95"][1]
             # the row is the committed run's: a longer run committed since must be flown again
-            label = {name: label for label, name in leaderboard().RL_ROWS.items()}[row["controller"]]
+            board = leaderboard()
+            name = row["controller"].removesuffix(board.RL_ROBUST_SUFFIX)  # the same checkpoints
+            label = {name: label for label, name in board.RL_ROWS.items()}[name]
             summary = json.loads(
                 (ROOT / "results" / "rl-baselines" / row["task"] / f"{label}.json").read_text()
             )
@@ -69,6 +71,34 @@ def test_every_task_has_every_kind_of_row_with_the_issues_keys():
                 "controller"
             ]
         assert all(math.isfinite(v) for v in (row["metric"], row["energy_ratio"], row["delta_v_ratio"]))
+
+
+def test_an_rl_row_flown_through_the_robust_filter_is_its_checkpoints_under_the_deployment_layers():
+    """RL_ROBUST_ROWS: the same seeds and env steps as the row it repeats, through the covariance-sized
+    robust filter with its stop line on the navigation filter, and the README's summary names each
+    row once even where the best RL row is also a robust-filter row."""
+    board = leaderboard()
+    for task, labels in board.RL_ROBUST_ROWS.items():
+        for label in labels:
+            plain = next(r for r in ROWS if r["task"] == task and r["controller"] == board.RL_ROWS[label])
+            robust = next(
+                r
+                for r in ROWS
+                if r["task"] == task and r["controller"] == plain["controller"] + board.RL_ROBUST_SUFFIX
+            )
+            assert (robust["seeds"], robust["env_steps"]) == (plain["seeds"], plain["env_steps"])
+            assert robust["robust_bounds"] == {
+                "from": "1-sigma DISPERSIONS",
+                "k_sigma": board.ROBUST_K_SIGMA,
+                "navigation_margins": "the navigation filter's covariance",
+                "stop_line": True,
+            }
+            assert "trained through the nominal filter" in robust["source"]
+    tables = board.summary(ROWS).split("\n\n")
+    assert len(tables) >= 6  # a title and a table per task
+    for table in tables:
+        names = [line.split(" | ")[0] for line in table.splitlines() if line.startswith("| ")]
+        assert len(names) == len(set(names)), table
 
 
 @pytest.mark.needs("families")  # the task loads its family's train.py, which imports torch
