@@ -19,7 +19,11 @@ docking tasks the family's filter sits in the training loop, as ACT3's run-time 
   is fitted to their actions (mean squared error, Adam, ``--bc-epochs`` passes); then the first
   ``--critic-warmup`` env steps train the value function alone, the actor frozen, so that PPO's first
   policy updates use advantages from a critic of the clone, not from a random one (measured without
-  both: the clone's 1.63 on the search split became 4.71 within 254k steps).
+  both: the clone's 1.63 on the search split became 4.71 within 254k steps). ``--bc-weight`` keeps a
+  cloning term in PPO's updates, as DAPG does (Rajeswaran et al. 2018): every minibatch step adds
+  ``bc_weight * bc_decay**k`` times the gradient of the clone's loss on a minibatch of demonstrations,
+  ``k`` the PPO iteration, so the demonstrations hold the actor early and fade out
+  (:func:`cloning_term`).
 
 Each seed trains in ``--work/<task>/<algo>/s<seed>`` and saves the model, VecNormalize's statistics and
 its learning curve (metric and success on the family's search split, its N_EVAL starts, against env
@@ -55,7 +59,15 @@ BOOTSTRAP_REPS = 2000  # rliable's stratified bootstrap resamples (its examples 
 BOOTSTRAP_SEED = 0
 SMOKE_STARTS = 8  # --smoke: the starts each split is scored on (plumbing only)
 # recipe()'s keys, in a curve's first point
-RECIPE_KEYS = ("critic_warmup", "reward", "log_std_init", "learning_rate", "lr_anneal")
+RECIPE_KEYS = (
+    "critic_warmup",
+    "reward",
+    "log_std_init",
+    "learning_rate",
+    "lr_anneal",
+    "bc_weight",
+    "bc_decay",
+)
 # a seed's checkpoint, in its work directory; REPLAY: an off-policy row's replay buffer, which SB3's
 # model.save leaves out and without which a resumed SAC would learn from an empty buffer
 MODEL, STATISTICS, REPLAY = "model.zip", "vecnormalize.pkl", "replay.pkl"
@@ -76,6 +88,18 @@ def parse_args(argv=None) -> argparse.Namespace:
         type=int,
         default=100_000,
         help="bc-ppo: env steps that train the value function alone, the cloned actor frozen",
+    )
+    parser.add_argument(
+        "--bc-weight",
+        type=float,
+        default=0.0,
+        help="bc-ppo: the cloning term's weight in PPO's updates at the first iteration (DAPG's lambda_0; 0: none)",
+    )
+    parser.add_argument(
+        "--bc-decay",
+        type=float,
+        default=0.95,
+        help="bc-ppo: the cloning term's weight is multiplied by this every PPO iteration (DAPG's lambda_1)",
     )
     parser.add_argument(
         "--reward",
@@ -117,6 +141,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error("--timesteps must be >= 1")
     if args.learning_rate is not None and not 0 < args.learning_rate < float("inf"):
         parser.error(f"--learning-rate must be a positive finite number, got {args.learning_rate}")
+    if not (np.isfinite(args.bc_weight) and args.bc_weight >= 0):
+        parser.error(f"--bc-weight must be a finite number >= 0, got {args.bc_weight}")
+    if not 0 < args.bc_decay <= 1:
+        parser.error(f"--bc-decay must be in (0, 1], got {args.bc_decay}")
+    if args.bc_weight and args.algo != "bc-ppo":
+        parser.error(f"--bc-weight keeps a cloning term: only bc-ppo has a clone, not {args.algo}")
     args.reward = _weights(parser, args.reward)
     if args.tag is not None and not args.tag.replace("-", "").isalnum():
         parser.error(f"--tag must be letters, digits and '-', got {args.tag!r}")
@@ -151,6 +181,8 @@ def recipe(args: argparse.Namespace) -> dict:
         out["learning_rate"] = args.learning_rate
     if args.lr_anneal:
         out["lr_anneal"] = True
+    if args.bc_weight:
+        out |= {"bc_weight": args.bc_weight, "bc_decay": args.bc_decay}
     return out
 
 
@@ -250,17 +282,28 @@ class Row:
         return correction
 
 
+def demonstration_pairs(family) -> tuple[np.ndarray, np.ndarray]:
+    """The family's demonstrations as the env sees them: observations, and actions (thrust / u_max)."""
+    from cwh_envs.datasets import demonstrations
+
+    demos = demonstrations(family.TASK, family.POOL_DEMOS, seed=0, problem=family.PROBLEM)
+    return demos.observations.astype(np.float32), np.clip(demos.actions / family.PROBLEM.u_max, -1.0, 1.0)
+
+
+def cloning_loss(policy, x, y):
+    """The clone's loss: the squared error of the actor's mean on normalised observations ``x``."""
+    latent = policy.mlp_extractor.forward_actor(policy.extract_features(x, policy.pi_features_extractor))
+    return ((policy.action_net(latent) - y) ** 2).mean()
+
+
 def clone_into(model, normalizer, family, epochs: int, seed: int) -> dict:
     """bc-ppo: VecNormalize's observation statistics from the family's demonstrations, then the actor's
     mean fitted to their actions (MSE, Adam), so that PPO starts from the clone. Returns the fit's loss."""
     import torch
 
-    from cwh_envs.datasets import demonstrations
     from cwh_envs.sb3 import FixedStatistics
 
-    demos = demonstrations(family.TASK, family.POOL_DEMOS, seed=0, problem=family.PROBLEM)
-    obs = demos.observations.astype(np.float32)  # what the env observes
-    actions = np.clip(demos.actions / family.PROBLEM.u_max, -1.0, 1.0)  # the env's action: thrust / u_max
+    obs, actions = demonstration_pairs(family)
     normalizer.obs_rms = FixedStatistics.of(obs.mean(axis=0), obs.var(axis=0) + 1e-8, float(len(obs)))
     policy = model.policy
     x = torch.as_tensor(normalizer.normalize_obs(obs), dtype=torch.float32)
@@ -271,14 +314,42 @@ def clone_into(model, normalizer, family, epochs: int, seed: int) -> dict:
     loss = torch.tensor(float("nan"))
     for _ in range(epochs):
         for batch in torch.randperm(len(x), generator=generator).split(256):
-            latent = policy.mlp_extractor.forward_actor(
-                policy.extract_features(x[batch], policy.pi_features_extractor)
-            )
-            loss = ((policy.action_net(latent) - y[batch]) ** 2).mean()
+            loss = cloning_loss(policy, x[batch], y[batch])
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
     return {"bc_loss": loss.item(), "bc_pairs": len(x)}
+
+
+def cloning_term(model, normalizer, family, weight: float, decay: float, seed: int):
+    """--bc-weight: DAPG's augmented gradient (Rajeswaran et al. 2018) on SB3's PPO, through the
+    optimiser's own step pre-hook (PPO's loss is built inside its ``train``): before every minibatch
+    step, the gradient of ``weight * decay**k`` times the clone's loss on a minibatch of
+    demonstrations (PPO's batch size) is added to PPO's, ``k`` the PPO iteration (env steps so far
+    over the rollout's size), so that a resumed run continues the schedule. The term is added after
+    PPO's gradient-norm clip, and not while the actor is frozen (the critic's warm-up). DAPG weights
+    it by the batch's largest advantage as well; here the weight alone sets its scale. Returns the
+    hook's handle."""
+    import torch
+
+    obs, actions = demonstration_pairs(family)
+    # the statistics the clone was fitted with: held fixed (FixedStatistics), so x stays valid
+    x = torch.as_tensor(normalizer.normalize_obs(obs), dtype=torch.float32)
+    y = torch.as_tensor(actions, dtype=torch.float32)
+    policy, per_iteration = model.policy, model.n_steps * model.n_envs
+    generator = torch.Generator().manual_seed(seed)
+
+    def add_cloning_gradient(optimizer, args, kwargs) -> None:
+        if not policy.action_net.weight.requires_grad:
+            return
+        batch = torch.randint(len(x), (model.batch_size,), generator=generator)
+        (
+            weight
+            * decay ** (model.num_timesteps // per_iteration)
+            * cloning_loss(policy, x[batch], y[batch])
+        ).backward()
+
+    return policy.optimizer.register_step_pre_hook(add_cloning_gradient)
 
 
 def actor_parameters(model) -> list:
@@ -341,6 +412,8 @@ def train_seed(row: Row, seed: int) -> dict:
             extra = {**clone_into(model, normalizer, row.family, args.bc_epochs, seed), **extra}
         if args.algo == "residual-ppo":
             zero_residual(model)
+    if args.bc_weight:  # on the optimiser a loaded model has just made, too
+        cloning_term(model, normalizer, row.family, args.bc_weight, args.bc_decay, seed)
     warmup = args.critic_warmup if args.algo == "bc-ppo" else 0
     evaluate = row.eval_set("search", dispersed=False)
     while model.num_timesteps < args.timesteps or not points:

@@ -225,3 +225,57 @@ def test_a_learning_rate_set_for_a_row_trains_at_it_and_is_part_of_its_recipe(tm
     for bad in ("0", "-1e-4", "nan"):
         with pytest.raises(SystemExit):
             rl_baselines.parse_args(["--task", "docking", "--algo", "ppo", "--learning-rate", bad])
+
+
+def test_the_cloning_term_adds_its_decaying_gradient_to_each_ppo_step_and_is_part_of_the_recipe(tmp_path):
+    """--bc-weight (DAPG's augmented gradient): before each of PPO's optimiser steps the hook adds
+    exactly ``weight * decay**k`` times the clone's loss gradient on a demonstration minibatch to the
+    gradient PPO left, ``k`` the PPO iteration from the env steps (so a resumed run continues the
+    schedule); nothing while the actor is frozen; the recipe records it and refuses another."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    row = rl_baselines.Row(rl_baselines.parse_args(["--task", "docking", "--algo", "bc-ppo", "--smoke"]))
+    normalizer = VecNormalize(row.envs(0, 2))
+    model = PPO("MlpPolicy", normalizer, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu")
+    rl_baselines.clone_into(model, normalizer, row.family, 1, 0)
+    rl_baselines.cloning_term(model, normalizer, row.family, 0.5, 0.5, seed=7)
+    obs, actions = rl_baselines.demonstration_pairs(row.family)
+    x = torch.as_tensor(normalizer.normalize_obs(obs), dtype=torch.float32)
+    y = torch.as_tensor(actions, dtype=torch.float32)
+    batch = torch.randint(len(x), (32,), generator=torch.Generator().manual_seed(7))  # the hook's first draw
+    params = list(model.policy.parameters())
+    model.policy.optimizer.zero_grad()
+    (0.5 * 0.5**3 * rl_baselines.cloning_loss(model.policy, x[batch], y[batch])).backward()
+    expected = [torch.zeros_like(p) if p.grad is None else p.grad.clone() for p in params]
+    assert any(e.abs().sum() > 0 for e in expected)
+    for group in model.policy.optimizer.param_groups:
+        group["lr"] = (
+            0.0  # the step then leaves the parameters, and the gradients the hook added, as they are
+        )
+    model.num_timesteps = 3 * 128 + 5  # the 4th rollout of 2 envs x 64 steps: k = 3
+    for p in params:
+        p.grad = torch.ones_like(p)  # what PPO's own loss left
+    model.policy.optimizer.step()
+    for p, e in zip(params, expected, strict=True):
+        torch.testing.assert_close(p.grad, 1.0 + e)
+    for p in rl_baselines.actor_parameters(model):  # the critic's warm-up: the actor frozen, no term
+        p.requires_grad_(False)
+    for p in params:
+        p.grad = torch.ones_like(p)
+    model.policy.optimizer.step()
+    assert all(torch.equal(p.grad, torch.ones_like(p)) for p in params)
+
+    common = ["--algo", "bc-ppo", "--seeds", "0", "--eval-every", "128", "--smoke", "--bc-epochs", "1"]
+    common += ["--critic-warmup", "0", "--tag", "dapg"]
+    result = run(tmp_path, *common, "--timesteps", "128", "--bc-weight", "0.1", "--bc-decay", "0.9")
+    assert (result["bc_weight"], result["bc_decay"]) == (0.1, 0.9)
+    assert result["curves"][0]["curve"][0]["bc_weight"] == 0.1
+    with pytest.raises(SystemExit, match="asked for the defaults"):
+        run(tmp_path, *common, "--timesteps", "256")
+    for bad in (["--bc-weight", "-1"], ["--bc-weight", "nan"], ["--bc-decay", "0"], ["--bc-decay", "1.5"]):
+        with pytest.raises(SystemExit):
+            rl_baselines.parse_args(["--task", "docking", "--algo", "bc-ppo", *bad])
+    with pytest.raises(SystemExit):  # only bc-ppo has a clone to keep
+        rl_baselines.parse_args(["--task", "docking", "--algo", "ppo", "--bc-weight", "0.1"])
