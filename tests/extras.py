@@ -20,6 +20,7 @@ EXTRAS = {
     "rl": ("stable_baselines3", "rliable"),
     "onnx": ("onnx", "onnxruntime"),
     "dashboard": ("optuna_dashboard",),
+    "fast": ("numba",),
 }
 
 
