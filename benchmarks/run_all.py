@@ -76,6 +76,7 @@ INSTALL_LOG = "results/logs/bench_install.txt"  # bench_install.py's committed o
 CBF_MULTI_LOG = "results/logs/bench_cbf_multi.txt"  # bench_cbf_multi.py's committed output
 RAY_LOG = "results/logs/bench_ray_scaling.txt"  # bench_ray_scaling.py's committed output
 EXPERT_SOLVERS_LOG = "results/logs/bench_expert_solvers.txt"  # bench_expert_solvers.py's committed output
+FLIGHT_PATH_LOG = "results/logs/bench_flight_path.txt"
 
 Row = tuple[str, str, str, str]  # what | measured | ratio / comparison | note
 
@@ -428,6 +429,31 @@ def expert_solver_rows() -> list[Row]:
     ]
 
 
+def flight_path_rows() -> list[Row]:
+    """The learned robust row's per-step compute, numpy against compiled, and against the robust MPC's
+    mean step, from bench_flight_path.py's committed output (nothing is run)."""
+    log = ROOT / FLIGHT_PATH_LOG
+    what = "learned robust row, µs a step (median): numpy path vs compiled (filters compiled, policy in ONNX)"
+    if not log.is_file():
+        return [(what, "not run", "", f"benchmarks/bench_flight_path.py > {FLIGHT_PATH_LOG}")]
+    text = log.read_text(encoding="utf-8")
+    medians = {line[:34].strip(): line[34:].split()[0] for line in text.splitlines() if line[34:].split()}
+    ratios = re.search(r"compiled path / numpy path: (\S+); .*?compiled path (\S+), exported policy", text)
+    if ratios is None:
+        raise ValueError(f"{FLIGHT_PATH_LOG} has no ratios line: run benchmarks/bench_flight_path.py again")
+    numpy_path, compiled_path = medians["numpy (the leaderboard's path)"], medians["compiled (ONNX policy)"]
+    return [
+        (
+            what,
+            f"{numpy_path} vs {compiled_path}",
+            f"{ratios.group(1)} (means); {ratios.group(2)} of the robust MPC's mean step (target <= 0.01)",
+            f"filter {medians['filter numpy']} vs {medians['filter compiled']}, navigation filter "
+            f"{medians['nav numpy']} vs {medians['nav compiled']}, ONNX policy {medians['policy onnx']}; "
+            f"{FLIGHT_PATH_LOG}",
+        )
+    ]
+
+
 def ray_rows() -> list[Row]:
     """Campaign and audit wall time against Ray workers, and Ray's overhead per run, from
     bench_ray_scaling.py's committed output (it starts a Ray instance per worker count)."""
@@ -608,6 +634,7 @@ def main() -> int:
         rows += early_stop_rows()
         rows += evidence_rows()
         rows += sb3_rows() + evaluation_rows() + install_rows() + cbf_multi_rows() + expert_solver_rows()
+        rows += flight_path_rows()
         rows += ray_rows()
         rows.append(main_job_row())
     progress("done")

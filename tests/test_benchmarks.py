@@ -239,3 +239,29 @@ def test_expert_solver_rows_read_the_committed_table(tmp_path, monkeypatch):
     assert what.startswith("constrained docking expert")
     assert measured == "0.86 s vs 4.70 s; max 3.6 s vs 196.4 s" and ratio == "in all 17 s vs 368 s"
     assert note.startswith("verified 16 of 16 vs 15 of 16; final costs within 5.8e-09")
+
+
+def test_flight_path_rows_read_the_committed_table(tmp_path, monkeypatch):
+    text = (
+        "[bench] robust hand recipe (BC) on 8 sealed docking-constrained starts, 1920 steps, µs a step\n"
+        "layer or path                            p50       p99      mean\n"
+        "nav numpy                              142.5     302.5     163.5\n"
+        "nav compiled                            23.4      69.0      26.4\n"
+        "policy torch                           586.2    1261.2     659.1\n"
+        "policy onnx                            168.8     370.7     183.7\n"
+        "filter numpy                           818.7    2573.0     968.2\n"
+        "filter compiled                         39.4      93.6      44.7\n"
+        "numpy (the leaderboard's path)        1607.7    3877.0    1790.8\n"
+        "compiled (ONNX policy)                 234.6     495.8     254.9\n"
+        "[bench] compiled path / numpy path: 0.142; against the robust MPC's mean step: compiled path "
+        "0.0341, exported policy + compiled filter 0.0306 (target <= 0.01); every compiled filter ...\n"
+    )
+    committed_log(tmp_path, monkeypatch, run_all.flight_path_rows, "results/logs/bench_flight_path.txt", text)
+    ((what, measured, ratio, note),) = run_all.flight_path_rows()
+    assert what.startswith("learned robust row")
+    assert measured == "1607.7 vs 234.6" and ratio.startswith("0.142 (means); 0.0341 of the robust MPC")
+    assert (
+        "filter 818.7 vs 39.4" in note
+        and "navigation filter 142.5 vs 23.4" in note
+        and "ONNX policy 168.8" in note
+    )
