@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.ticker import EngFormatter
 
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = {
@@ -517,6 +518,7 @@ def plot(curves: list[dict], metric: str, path: Path, title: str) -> None:
         steps.plot(x, y, marker=".", label=f"seed {run['seed']}")
         seconds.plot([p["train_seconds"] for p in run["curve"]], y, marker=".")
     steps.set(xlabel="env steps", ylabel=f"{metric}\non the search split (lower is better)", yscale="log")
+    steps.xaxis.set_major_formatter(EngFormatter())  # 200k, 1M: raw step counts run into each other
     seconds.set(xlabel="training wall-clock [s] (evaluation excluded)", yscale="log")
     steps.legend(fontsize="small")
     figure.suptitle(title)
