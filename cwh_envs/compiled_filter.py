@@ -138,7 +138,7 @@ class CompiledRobustFilter:
                 f"got {u0.shape}, {x.shape} and {g.shape}"
             )
         sigma = self._bounds_sigma if navigation_sigma is None else _check_sigma(navigation_sigma, 1)[0]
-        if not _finite(u0, x, g):
+        if not (_finite(u0) and _finite(x) and _finite(g)):
             raise ValueError("estimates, u_nominal and goals must be finite, got NaN/inf entries")
         u, scale, dropped, correction = _robust(u0, x, g, self.a, self.b, self.lever, self.parameters, sigma)
         return RobustCBFResult(u, correction > 0.0, scale < 1.0, correction, dropped, scale)
@@ -148,11 +148,10 @@ class CompiledRobustFilter:
 
 
 @njit(cache=True)
-def _finite(u0, x, g):
-    for values in (u0, x, g):
-        for value in values:
-            if not math.isfinite(value):
-                return False
+def _finite(values):
+    for value in values:
+        if not math.isfinite(value):
+            return False
     return True
 
 
@@ -183,18 +182,6 @@ def _mat_vec(m, v):
         for j in range(m.shape[1]):
             total += m[i, j] * v[j]
         out[i] = total
-    return out
-
-
-@njit(cache=True)
-def _mat_t_vec(m, v):
-    """``m.T @ v``."""
-    out = np.zeros(m.shape[1])
-    for j in range(m.shape[1]):
-        total = 0.0
-        for i in range(m.shape[0]):
-            total += m[i, j] * v[i]
-        out[j] = total
     return out
 
 
@@ -385,6 +372,15 @@ def _polytope_box(u0, g_rows, h, applies, u_max):
 
 
 @njit(cache=True)
+def _keep_out(coast, two_step, lever, radius):
+    """cwh_envs.cbf.barrier_terms for one instance from ``A x`` and ``A^2 x``: (beta, rho) of
+    ``beta^T u >= rho``, ``radius`` the keep-out's plus its standoff."""
+    norm = _norm3(coast[:3])
+    normal = coast[:3] / norm if norm > 0.0 else _FALLBACK.copy()
+    return _mat_vec(lever.T, normal), radius - _dot3(normal, two_step[:3])
+
+
+@njit(cache=True)
 def _barrier_rows(
     x, goal, point, a, b, lever, koz, standoff, has_speed, v0, v1, has_cone, half_angle, radius
 ):
@@ -394,10 +390,7 @@ def _barrier_rows(
     applies = np.zeros(3, dtype=np.bool_)
     coast = _mat_vec(a, x)
     two_step = _mat_vec(a, coast)
-    norm = _norm3(coast[:3])
-    normal = coast[:3] / norm if norm > 0.0 else _FALLBACK.copy()
-    rows[0] = _mat_t_vec(lever, normal)
-    h[0] = koz + standoff - _dot3(normal, two_step[:3])
+    rows[0], h[0] = _keep_out(coast, two_step, lever, koz + standoff)
     applies[0] = True
     if has_speed:
         nominal = coast + _mat_vec(b, point)
@@ -405,7 +398,7 @@ def _barrier_rows(
         speed, distance = _norm3(nominal[3:]), _norm3(offset)
         along_v = nominal[3:] / speed if speed > 0.0 else np.zeros(3)
         along_r = offset / distance if distance > 0.0 else np.zeros(3)
-        grad = _mat_t_vec(b[3:], along_v) - v1 * _mat_t_vec(b[:3], along_r)
+        grad = _mat_vec(b[3:].T, along_v) - v1 * _mat_vec(b[:3].T, along_r)
         excess = speed - (v0 - min(SPEED_SLACK, v0 / 2.0)) - v1 * distance
         rows[1] = -grad
         h[1] = excess - _dot3(grad, point)
@@ -417,7 +410,7 @@ def _barrier_rows(
         axis = _axis(goal)
         direction = offset / distance if distance > APEX else axis
         normal = axis - math.cos(half_angle) * direction
-        rows[2] = _mat_t_vec(lever, normal)
+        rows[2] = _mat_vec(lever.T, normal)
         h[2] = -_dot3(normal, drift)
         applies[2] = distance <= radius
     return rows, h, applies
@@ -484,11 +477,8 @@ def _nominal(u0, x, goal, a, b, lever, u_max, koz, standoff, has_speed, v0, v1, 
             break
     if not met:  # the keep-out alone is infeasible: the thrust that best satisfies it
         coast = _mat_vec(a, x)
-        two_step = _mat_vec(a, coast)
-        norm = _norm3(coast[:3])
-        normal = coast[:3] / norm if norm > 0.0 else _FALLBACK.copy()
-        beta = _mat_t_vec(lever, normal)
-        u, _ = _halfspace_box(u0, beta, koz + standoff - _dot3(normal, two_step[:3]), u_max)
+        beta, rho = _keep_out(coast, _mat_vec(a, coast), lever, koz + standoff)
+        u, _ = _halfspace_box(u0, beta, rho, u_max)
     held, _ = _broken_when_held(x, goal, u, a, b, has_speed, v0, v1, has_cone, half_angle, radius)
     for i in range(3):  # a barrier that does not apply was not given up
         dropped[i] = dropped[i] and held[i]
@@ -587,10 +577,10 @@ def _robust_action(u0, x, g, a, b, lever, p, sigma):
                 predicted = two_step + _mat_vec(lever, point)
                 near = _norm3(predicted) <= radius + ZONE_LOOKAHEAD
                 if outside:
-                    rows[2] = _mat_t_vec(lever, normal)
+                    rows[2] = _mat_vec(lever.T, normal)
                     h[2] = radius + eps - _dot3(normal, two_step)
                 if stop > 0.0 and not outside and _dot3(predicted, port_axis) < 2.0 * stop:
-                    rows[2] = _mat_t_vec(lever, port_axis)
+                    rows[2] = _mat_vec(lever.T, port_axis)
                     h[2] = stop - _dot3(port_axis, two_step)
                 applies[2] = outside or near
             size = _norm3(point)

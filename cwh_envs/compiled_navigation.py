@@ -30,6 +30,7 @@ except ModuleNotFoundError as err:
         name=err.name,
     ) from err
 
+from cwh_envs.compiled_filter import _finite
 from cwh_envs.navigation import _N, NOISE_PRIOR_STEPS, PROCESS_FLOOR, NavigationFilter
 from cwh_envs.problems import DockingProblem
 from cwh_envs.robust_cbf import ErrorBounds
@@ -90,14 +91,6 @@ class CompiledNavigationFilter:
         if out.shape != (n,) or not _finite(out):
             raise ValueError(f"{name} must be {n} finite numbers, got {values!r}")
         return out
-
-
-@njit(cache=True)
-def _finite(values):
-    for value in values:
-        if not math.isfinite(value):
-            return False
-    return True
 
 
 @njit(cache=True)

@@ -44,6 +44,8 @@ def leaderboard():
 
 
 def test_every_task_has_every_kind_of_row_with_the_issues_keys():
+    board = leaderboard()
+    labels = {name: label for label, name in board.RL_ROWS.items()}
     for task in ("rendezvous", "docking", "docking-constrained"):
         names = {row["controller"] for row in ROWS if row["task"] == task}
         assert {"open-loop expert", "MPC", "SB3 PPO", "SB3 SAC", "first GP campaign (BC)"} <= names, task
@@ -64,9 +66,7 @@ def test_every_task_has_every_kind_of_row_with_the_issues_keys():
             assert min(row["metric_per_seed"]) <= row["iqm"]["iqm"] <= max(row["metric_per_seed"])
             assert row["iqm"]["ci95"][0] <= row["iqm"]["iqm"] <= row["iqm"]["ci95"][1]
             # the row is the committed run's: a longer run committed since must be flown again
-            board = leaderboard()
-            name = row["controller"].removesuffix(board.RL_ROBUST_SUFFIX)  # the same checkpoints
-            label = {name: label for label, name in board.RL_ROWS.items()}[name]
+            label = labels[row["controller"].removesuffix(board.RL_ROBUST_SUFFIX)]  # the same checkpoints
             summary = json.loads(
                 (ROOT / "results" / "rl-baselines" / row["task"] / f"{label}.json").read_text()
             )
