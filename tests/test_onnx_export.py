@@ -202,6 +202,34 @@ def test_a_robust_filter_recipe_is_flown_through_the_robust_filter_by_fly_onnx(e
     assert flown["score"] == pytest.approx(robust["score"], rel=1e-5)
 
 
+@pytest.mark.slow
+@pytest.mark.needs("fast")
+def test_docking_export_writes_a_compiled_policy_that_flies_as_the_torch_one(exported, tmp_path):
+    """``export.py --compiled`` (cwh_envs.compiled_policy, numba): on the torch flight's own
+    observations, the torch policy's actions to float32 rounding, and the family's metric."""
+    from cwh_envs.compiled_policy import CompiledPolicy
+
+    family, _ = exported["docking"]
+    stdout = run(family / "export.py", "--policy", "out", "--compiled", tmp_path / "p.npz", cwd=family)
+    summary = json.loads(stdout.split("COMPILED: ", 1)[1])
+    assert "EXPORTED" not in stdout and summary["max_action_difference"] <= 1e-5
+    train = import_train(family / "train.py")
+    policy, saved = train.load_policy(family / "out")
+    compiled = CompiledPolicy.load(tmp_path / "p.npz")
+    assert compiled.metadata["config"] == saved["config"] and compiled.metadata["runtime_cbf_filter"] is True
+    held_out = evaluation_set(train.TASK, train.N_EVAL, problem=train.PROBLEM)
+    flight = fly(train.PROBLEM, policy.act, held_out.starts, held_out.goals, cbf_margin=train.PROBLEM.margin)
+    seen = observations(train.TASK, flight, train.PROBLEM.horizon)
+    assert np.abs(compiled(seen) - policy.act(seen)).max() <= 1e-5
+    assert train.evaluate(compiled, held_out, True, dispersed=False)["score"] == pytest.approx(
+        saved["record"]["score"], rel=1e-5
+    )
+    result = subprocess.run(
+        [sys.executable, family / "export.py", "--policy", "out"], cwd=family, capture_output=True, text=True
+    )
+    assert result.returncode != 0 and "give --onnx, --compiled or both" in result.stderr
+
+
 def test_export_policy_standardises_clips_and_keeps_metadata(tmp_path):
     torch.manual_seed(0)
     net = torch.nn.Sequential(torch.nn.Linear(4, 8), torch.nn.Tanh(), torch.nn.Linear(8, 3))

@@ -1,6 +1,7 @@
 """Export a trained docking policy to ONNX: the file that flies, with the CBF setting it flew with.
 
     python families/docking/export.py --policy OUT_DIR_OR_policy.pt --onnx policy.onnx
+    python families/docking/export.py --policy OUT_DIR_OR_policy.pt --compiled policy.npz
 
 The policy is restored by this family's own train.py (``load_policy``); the graph takes the
 observation [r, v, g, tau] (N, 10) float32 as the env shows it, standardises it inside, and returns
@@ -9,6 +10,10 @@ CBF filter is not in the graph: it stays ``cwh_envs.cbf.safe_actions``, applied 
 outside it, and the file's metadata says whether the recipe had it on (``runtime_cbf_filter``,
 ``cbf_margin``), with the task, the problem constants and the recipe. Before writing, the file is
 checked against the torch policy on 1024 observations; one summary line is printed.
+
+``--compiled`` writes the same function for :class:`cwh_envs.compiled_policy.CompiledPolicy` (numba,
+one chaser a call, in microseconds: the MLP's layers and the law a residual form corrects, as
+arrays in an .npz with the same metadata), held to the torch policy the same way.
 """
 
 from __future__ import annotations
@@ -18,10 +23,11 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import torch
 import train
 
-from cwh_envs.onnx_policy import export_checked
+from cwh_envs.onnx_policy import action_difference, export_checked
 
 ENV_ID = "CWHDockKOZ-v1"
 CHECK_ROWS = 1024  # observations the exported file is compared with the torch policy on
@@ -33,8 +39,11 @@ def main() -> None:
     parser.add_argument(
         "--policy", type=Path, required=True, help="a train.py --out directory or its policy.pt"
     )
-    parser.add_argument("--onnx", type=Path, required=True, help="the ONNX file to write")
+    parser.add_argument("--onnx", type=Path, help="the ONNX file to write")
+    parser.add_argument("--compiled", type=Path, help="the .npz to write for cwh_envs.compiled_policy")
     args = parser.parse_args()
+    if args.onnx is None and args.compiled is None:
+        parser.error("give --onnx, --compiled or both")
     torch.set_num_threads(train.TORCH_THREADS)
     policy, saved = train.load_policy(args.policy)
     if saved["task"] != train.TASK:
@@ -56,13 +65,56 @@ def main() -> None:
         "config": saved["config"],
         "record": {key: saved["record"].get(key) for key in ("run_id", "seed", train.METRIC, "eval_split")},
     }
-    try:
-        summary = export_checked(
-            policy, args.onnx, metadata, source, rows=CHECK_ROWS, tolerance=CHECK_TOLERANCE
+    if args.onnx is not None:
+        try:
+            summary = export_checked(
+                policy, args.onnx, metadata, source, rows=CHECK_ROWS, tolerance=CHECK_TOLERANCE
+            )
+        except ValueError as err:
+            raise SystemExit(f"export.py: {err}") from None
+        print("EXPORTED: " + json.dumps(summary), flush=True)
+    if args.compiled is not None:
+        print("COMPILED: " + json.dumps(write_compiled(policy, args.compiled, metadata)), flush=True)
+
+
+def write_compiled(policy, path: Path, metadata: dict) -> dict:
+    """``policy`` as a CompiledPolicy at ``path``, kept only if its actions are within
+    CHECK_TOLERANCE of the torch policy's on CHECK_ROWS observations; its summary line."""
+    from cwh_envs.compiled_policy import CompiledPolicy, ResidualLaw
+
+    linear = [layer for layer in policy.net if isinstance(layer, torch.nn.Linear)]
+    form = getattr(policy, "form", "residual" if policy.residual else "direct")
+    law = None
+    if form != "direct":
+        route = form == "route"
+        law = ResidualLaw(
+            policy.scale,
+            policy.target_gain.numpy(),
+            policy.state_gain.numpy(),
+            policy.u_max,
+            policy.route_along.detach().numpy()[:, 0] if route else np.zeros(0),
+            policy.route_across.detach().numpy()[:, 0] if route else np.zeros(0),
+            # Policy.forward: the route's correction is off past its last waypoint
+            train.PROBLEM.horizon - train.CONE_ROUTE[-1].step if route else -1,
         )
-    except ValueError as err:
-        raise SystemExit(f"export.py: {err}") from None
-    print("EXPORTED: " + json.dumps(summary), flush=True)
+    compiled = CompiledPolicy(
+        [layer.weight.detach().double().numpy() for layer in linear],
+        [layer.bias.detach().double().numpy() for layer in linear],
+        metadata["config"]["ACTIVATION"],
+        policy.obs_mean.double().numpy(),
+        policy.obs_std.double().numpy(),
+        law,
+    )
+    difference = action_difference(
+        policy.act, compiled, policy.obs_mean.numpy(), policy.obs_std.numpy(), CHECK_ROWS
+    )
+    if not difference <= CHECK_TOLERANCE:
+        raise SystemExit(
+            f"export.py: the compiled policy's actions differ from the torch policy's by {difference:.3g} "
+            f"(> {CHECK_TOLERANCE:g}); nothing written"
+        )
+    compiled.save(path, metadata)
+    return {"compiled": str(path), "task": metadata["task"], "max_action_difference": difference}
 
 
 if __name__ == "__main__":
