@@ -8,12 +8,15 @@ family's train.py under its budget at ``--seed``, as the leaderboard trains it; 
 trains it first, 600 s). Each of ``--starts`` sealed test starts is flown alone, nominally, through
 its layers as the leaderboard flies it (the navigation filter, the policy on its estimate, the
 robust filter sized by the navigation filter's covariance with its stop line), and each step's
-compute is then timed again, per layer, on the recorded steps (the leaderboard's way):
+compute is then timed again, per layer, on the recorded steps (the leaderboard's way), each path in
+a pass of its own, its layers back to back as they would fly:
 
 - **numpy**: :class:`cwh_envs.navigation.NavigationFilter` (its update, ``sigma`` and the thrust
   command through ``G_hat^-1``), the family's torch policy, :func:`cwh_envs.robust_cbf.robust_safe_actions`;
-- **compiled**: :mod:`cwh_envs.compiled_navigation`, the policy exported to ONNX by the family's
-  export.py (onnxruntime, one thread), :mod:`cwh_envs.compiled_filter`.
+- **compiled, ONNX policy**: :mod:`cwh_envs.compiled_navigation`, the policy exported to ONNX by
+  the family's export.py (onnxruntime, one thread), :mod:`cwh_envs.compiled_filter`;
+- **compiled, compiled policy**: the same with the policy export.py writes for
+  :mod:`cwh_envs.compiled_policy` (numba).
 
 Every compiled filter answer is checked against the numpy one on the same step. The robust MPC's
 per-step compute is the leaderboard's tube MPC row, the controller alone (no navigation filter, no
@@ -39,6 +42,10 @@ ROW = "robust hand recipe (BC)"
 MPC_ROW = "tube MPC (robust)"  # the robust MPC's own compute: its plan and its feedback, no layers
 TASK = "docking-constrained"
 TOLERANCE = 1e-9  # N: the compiled filter's answer against numpy's on the same step
+# The paths timed: numpy (the leaderboard's: numpy filters, the torch policy), then the compiled
+# filters with the policy exported to ONNX (onnxruntime) or compiled (cwh_envs.compiled_policy).
+PATHS = ("numpy", "compiled, ONNX policy", "compiled, compiled policy")
+LAYERS = ("navigation", "policy", "filter")
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -59,18 +66,22 @@ def leaderboard():
     return module
 
 
-def exported(run: Path, out: Path):
-    """The run's policy, exported by its family's export.py (checked against torch there), in onnxruntime."""
+def exported(run: Path, directory: Path):
+    """The run's policy exported by its family's export.py (each file checked against torch there):
+    the ONNX file in onnxruntime, and the compiled policy."""
+    from cwh_envs.compiled_policy import CompiledPolicy
     from cwh_envs.onnx_policy import OnnxPolicy
 
     family = ROOT / "families" / TASK
+    onnx, compiled = directory / "policy.onnx", directory / "policy.npz"
     subprocess.run(
-        [sys.executable, "export.py", "--policy", str(run), "--onnx", str(out)],
+        [sys.executable, "export.py", "--policy", str(run), "--onnx", str(onnx), "--compiled", str(compiled)],
         cwd=family,
         check=True,
         stdout=subprocess.DEVNULL,
     )
-    return OnnxPolicy(out, threads=1)
+    fast = CompiledPolicy.load(compiled)
+    return OnnxPolicy(onnx, threads=1), lambda obs: fast(obs[0])
 
 
 def record(task, entry, policy, start: int):
@@ -122,55 +133,62 @@ def nav_compiled(navigator, commanded, state):
     return navigator.sigma()
 
 
-def layers(task, entry, flight, seen, torch_policy, onnx_policy) -> dict[str, list[float]]:
-    """Seconds per step of each layer, numpy and compiled, on one recorded flight; checks the filters agree."""
+def layers(task, entry, flight, seen, policies: dict) -> dict[str, list[float]]:
+    """Seconds per step of each path's layers on one recorded flight; checks the filters agree.
+
+    ``policies``: {path: policy}, the numpy path's first (the torch policy)."""
     from cwh_envs.compiled_filter import CompiledRobustFilter
     from cwh_envs.compiled_navigation import CompiledNavigationFilter
     from cwh_envs.navigation import NavigationFilter
     from cwh_envs.robust_cbf import robust_safe_actions
 
     problem, bounds = task.problem, task.bounds_at(entry.k_sigma)
-    navigator, fast_navigator = (
-        NavigationFilter(problem, task.bounds),
-        CompiledNavigationFilter(problem, task.bounds),
-    )
     fast_filter = CompiledRobustFilter(problem, bounds, stop_line=entry.stop_line)
     goal = flight.goals[0]
-    out = {
-        key: []
-        for key in (
-            "nav numpy",
-            "nav compiled",
-            "policy torch",
-            "policy onnx",
-            "filter numpy",
-            "filter compiled",
-        )
-    }
+    out: dict[str, list[float]] = {}
+
+    def add(key, seconds, to_last=False):
+        if to_last:
+            out[key][-1] += seconds
+        else:
+            out.setdefault(key, []).append(seconds)
+
+    # Each path is timed in a pass of its own over the flight, its layers back to back as they
+    # would fly: timed interleaved, torch's policy call between them doubled onnxruntime's time (its
+    # caches evicted). The compiled filter is given the numpy path's policy action (the torch one;
+    # the exported ones differ by up to 1e-6) so that its answer can be held to numpy's on each step.
+    (numpy_path, torch_policy), *compiled_paths = policies.items()
+    navigator, commands, answers = NavigationFilter(problem, task.bounds), [], []
     for k, obs in enumerate(seen):
         state, commanded = flight.states[:, k], flight.thrust[:, k - 1] if k else None
-
         sigma, seconds = timed(nav_numpy, navigator, commanded, state)
-        out["nav numpy"].append(seconds)
-        fast_sigma, seconds = timed(nav_compiled, fast_navigator, commanded, state)
-        out["nav compiled"].append(seconds)
+        add(f"{numpy_path}: navigation", seconds)
         action, seconds = timed(torch_policy, obs)
-        out["policy torch"].append(seconds)
-        _, seconds = timed(onnx_policy, obs)
-        out["policy onnx"].append(seconds)
+        add(f"{numpy_path}: policy", seconds)
         u = np.clip(np.asarray(action, dtype=np.float64)[0], -1.0, 1.0) * problem.u_max
         result, seconds = timed(
             robust_safe_actions, u[None], state, flight.goals, problem, bounds, None, sigma, entry.stop_line
         )
-        _, commanding = timed(np.linalg.solve, navigator.thrust_gain(), result.u[:, :, None] / problem.u_max)
-        out["filter numpy"].append(seconds)
-        out["nav numpy"][-1] += commanding
-        fast, seconds = timed(fast_filter, u, state[0], goal, fast_sigma)
-        _, commanding = timed(fast_navigator.command, fast.u / problem.u_max)
-        out["filter compiled"].append(seconds)
-        out["nav compiled"][-1] += commanding
-        if np.abs(fast.u - result.u[0]).max() > TOLERANCE or fast.margin_scale != result.margin_scale[0]:
-            raise SystemExit(f"step {k}: the compiled filter answered {fast.u}, numpy {result.u[0]}")
+        add(f"{numpy_path}: filter", seconds)
+        _, seconds = timed(np.linalg.solve, navigator.thrust_gain(), result.u[:, :, None] / problem.u_max)
+        add(f"{numpy_path}: navigation", seconds, to_last=True)
+        commands.append(u)
+        answers.append(result)
+    for path, policy in compiled_paths:
+        navigator = CompiledNavigationFilter(problem, task.bounds)
+        for k, obs in enumerate(seen):
+            state, commanded = flight.states[:, k], flight.thrust[:, k - 1] if k else None
+            sigma, seconds = timed(nav_compiled, navigator, commanded, state)
+            add(f"{path}: navigation", seconds)
+            _, seconds = timed(policy, obs)
+            add(f"{path}: policy", seconds)
+            fast, seconds = timed(fast_filter, commands[k], state[0], goal, sigma)
+            add(f"{path}: filter", seconds)
+            _, seconds = timed(navigator.command, fast.u / problem.u_max)
+            add(f"{path}: navigation", seconds, to_last=True)
+            result = answers[k]
+            if np.abs(fast.u - result.u[0]).max() > TOLERANCE or fast.margin_scale != result.margin_scale[0]:
+                raise SystemExit(f"step {k}: the compiled filter answered {fast.u}, numpy {result.u[0]}")
     return out
 
 
@@ -186,35 +204,45 @@ def main(argv=None) -> None:
     torch_policy = entry.make(args.seed)  # trained by its family's train.py if not yet (as the leaderboard)
     run = args.work / TASK / board.slug(ROW) / f"s{args.seed}-budget{entry.time_budget:g}"
     with tempfile.TemporaryDirectory() as tmp:
-        onnx_policy = exported(run, Path(tmp) / "policy.onnx")
+        onnx_policy, compiled_policy = exported(run, Path(tmp))
+        policies = {PATHS[0]: torch_policy, PATHS[1]: onnx_policy, PATHS[2]: compiled_policy}
         samples: dict[str, list[float]] = {}
         # once untimed: the first calls load numba's compiled code and onnxruntime's session
-        layers(task, entry, *record(task, entry, torch_policy, 0), torch_policy, onnx_policy)
+        layers(task, entry, *record(task, entry, torch_policy, 0), policies)
         for start in range(args.starts):
             flight, seen = record(task, entry, torch_policy, start)
-            for key, seconds in layers(task, entry, flight, seen, torch_policy, onnx_policy).items():
+            for key, seconds in layers(task, entry, flight, seen, policies).items():
                 samples.setdefault(key, []).extend(seconds)
     us = {key: np.array(values) * 1e6 for key, values in samples.items()}
-    numpy_path = us["nav numpy"] + us["policy torch"] + us["filter numpy"]
-    compiled = us["nav compiled"] + us["policy onnx"] + us["filter compiled"]
-    paths = {"numpy (the leaderboard's path)": numpy_path, "compiled (ONNX policy)": compiled}
-    print(f"[bench] {ROW} on {args.starts} sealed {TASK} starts, {len(us['nav numpy'])} steps, µs a step")
-    print(f"{'layer or path':<34}{'p50':>10}{'p99':>10}{'mean':>10}")
-    for key, values in (*us.items(), *paths.items()):
-        print(
-            f"{key:<34}{np.percentile(values, 50):>10.1f}{np.percentile(values, 99):>10.1f}{values.mean():>10.1f}"
-        )
+    totals = {path: sum(us[f"{path}: {layer}"] for layer in LAYERS) for path in PATHS}
+    print(f"[bench] {ROW} on {args.starts} sealed {TASK} starts, {len(totals[PATHS[0]])} steps, µs a step")
+    print(f"{'path: layer':<44}{'p50':>10}{'p99':>10}{'mean':>10}")
+    for path in PATHS:
+        for key, values in (
+            *((f"{path}: {layer}", us[f"{path}: {layer}"]) for layer in LAYERS),
+            (path, totals[path]),
+        ):
+            print(
+                f"{key:<44}{np.percentile(values, 50):>10.1f}{np.percentile(values, 99):>10.1f}{values.mean():>10.1f}"
+            )
     mpc_timing = board.time_per_step(task, mpc, None)
     print(
-        f"{'robust MPC (' + MPC_ROW.split(' +')[0] + ')':<34}{mpc_timing['p50']:>10.1f}{mpc_timing['p99']:>10.1f}"
+        f"{'robust MPC (' + MPC_ROW + ')':<44}{mpc_timing['p50']:>10.1f}{mpc_timing['p99']:>10.1f}"
         f"{mpc_timing['mean']:>10.1f}   (one {mpc_timing['plan_s_median']:.2f} s plan per episode, amortised in the mean)"
     )
-    exported_filter = us["policy onnx"] + us["filter compiled"]
+    mpc_mean = mpc_timing["mean"]
+    ratios = []
+    for path in PATHS[1:]:
+        exported_filter = us[f"{path}: policy"] + us[f"{path}: filter"]
+        ratios.append(
+            f"{path}: {totals[path].mean() / totals[PATHS[0]].mean():.3f} of the numpy path; of the robust "
+            f"MPC's mean step, {totals[path].mean() / mpc_mean:.4f} with navigation, exported policy + "
+            f"filter {exported_filter.mean() / mpc_mean:.4f}"
+        )
     print(
-        f"[bench] compiled path / numpy path: {compiled.mean() / numpy_path.mean():.3f}; against the robust "
-        f"MPC's mean step: compiled path {compiled.mean() / mpc_timing['mean']:.4f}, exported policy + "
-        f"compiled filter {exported_filter.mean() / mpc_timing['mean']:.4f} (target <= 0.01); every "
-        f"compiled filter answer within {TOLERANCE:g} N of numpy's"
+        "[bench] "
+        + "; ".join(ratios)
+        + f" (target <= 0.01); every compiled filter answer within {TOLERANCE:g} N of numpy's"
     )
 
 

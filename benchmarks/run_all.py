@@ -430,26 +430,31 @@ def expert_solver_rows() -> list[Row]:
 
 
 def flight_path_rows() -> list[Row]:
-    """The learned robust row's per-step compute, numpy against compiled, and against the robust MPC's
-    mean step, from bench_flight_path.py's committed output (nothing is run)."""
+    """The learned robust row's per-step compute, numpy against compiled (filters and policy), and
+    against the robust MPC's mean step, from bench_flight_path.py's committed output (nothing is run)."""
     log = ROOT / FLIGHT_PATH_LOG
-    what = "learned robust row, µs a step (median): numpy path vs compiled (filters compiled, policy in ONNX)"
+    what = "learned robust row, µs a step (median): numpy path vs compiled (filters and policy compiled)"
     if not log.is_file():
         return [(what, "not run", "", f"benchmarks/bench_flight_path.py > {FLIGHT_PATH_LOG}")]
     text = log.read_text(encoding="utf-8")
-    medians = {line[:34].strip(): line[34:].split()[0] for line in text.splitlines() if line[34:].split()}
-    ratios = re.search(r"compiled path / numpy path: (\S+); .*?compiled path (\S+), exported policy", text)
-    if ratios is None:
+    medians = {line[:44].strip(): line[44:].split()[0] for line in text.splitlines() if line[44:].split()}
+    pattern = r"{}: (\S+) of the numpy path; of the robust MPC's mean step, \S+ with navigation, exported policy \+ filter (\S+?);?\s"
+    onnx, compiled = (
+        re.search(pattern.format(path), text)
+        for path in ("compiled, ONNX policy", "compiled, compiled policy")
+    )
+    if onnx is None or compiled is None:
         raise ValueError(f"{FLIGHT_PATH_LOG} has no ratios line: run benchmarks/bench_flight_path.py again")
-    numpy_path, compiled_path = medians["numpy (the leaderboard's path)"], medians["compiled (ONNX policy)"]
     return [
         (
             what,
-            f"{numpy_path} vs {compiled_path}",
-            f"{ratios.group(1)} (means); {ratios.group(2)} of the robust MPC's mean step (target <= 0.01)",
-            f"filter {medians['filter numpy']} vs {medians['filter compiled']}, navigation filter "
-            f"{medians['nav numpy']} vs {medians['nav compiled']}, ONNX policy {medians['policy onnx']}; "
-            f"{FLIGHT_PATH_LOG}",
+            f"{medians['numpy']} vs {medians['compiled, compiled policy']}",
+            f"{compiled.group(1)} (means); exported policy + filter {compiled.group(2)} of the robust MPC's "
+            f"mean step (target <= 0.01; ONNX policy: {onnx.group(2)})",
+            f"policy {medians['numpy: policy']} (torch) vs {medians['compiled, compiled policy: policy']} "
+            f"(ONNX {medians['compiled, ONNX policy: policy']}), filter {medians['numpy: filter']} vs "
+            f"{medians['compiled, compiled policy: filter']}, navigation filter {medians['numpy: navigation']} "
+            f"vs {medians['compiled, compiled policy: navigation']}; {FLIGHT_PATH_LOG}",
         )
     ]
 

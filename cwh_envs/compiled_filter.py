@@ -1,7 +1,7 @@
 """The robust multi-constraint filter of :mod:`cwh_envs.robust_cbf`, compiled (numba) for one chaser.
 
 Flight software filters one state per control step. The numpy filter is written for batches: on one
-state its time is the overhead of some sixty small array calls (about 0.8 ms a step at the median,
+state its time is the overhead of some sixty small array calls (0.6-0.8 ms a step at the median,
 measured alone: benchmarks/bench_flight_path.py), not arithmetic. :class:`CompiledRobustFilter` is the same algorithm, step for step, as scalar
 loops that numba compiles to machine code once (cached on disk), so that one step costs microseconds:
 

@@ -1,6 +1,6 @@
 """The navigation filter of :mod:`cwh_envs.navigation`, compiled (numba) for one chaser.
 
-The numpy filter steps a batch; on one chaser its time is array-call overhead (about 140 µs a step
+The numpy filter steps a batch; on one chaser its time is array-call overhead (about 100-140 µs a step
 with its sigma and thrust command, measured alone: benchmarks/bench_flight_path.py). :class:`CompiledNavigationFilter` is the same Kalman filter (the same model, prior,
 process floor, innovation monitor and ``sigma``), one episode at a time, compiled once and cached
 on disk:

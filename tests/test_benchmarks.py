@@ -244,24 +244,33 @@ def test_expert_solver_rows_read_the_committed_table(tmp_path, monkeypatch):
 def test_flight_path_rows_read_the_committed_table(tmp_path, monkeypatch):
     text = (
         "[bench] robust hand recipe (BC) on 8 sealed docking-constrained starts, 1920 steps, µs a step\n"
-        "layer or path                            p50       p99      mean\n"
-        "nav numpy                              142.5     302.5     163.5\n"
-        "nav compiled                            23.4      69.0      26.4\n"
-        "policy torch                           586.2    1261.2     659.1\n"
-        "policy onnx                            168.8     370.7     183.7\n"
-        "filter numpy                           818.7    2573.0     968.2\n"
-        "filter compiled                         39.4      93.6      44.7\n"
-        "numpy (the leaderboard's path)        1607.7    3877.0    1790.8\n"
-        "compiled (ONNX policy)                 234.6     495.8     254.9\n"
-        "[bench] compiled path / numpy path: 0.142; against the robust MPC's mean step: compiled path "
-        "0.0341, exported policy + compiled filter 0.0306 (target <= 0.01); every compiled filter ...\n"
+        "path: layer                                        p50       p99      mean\n"
+        "numpy: navigation                                102.2     190.1     109.1\n"
+        "numpy: policy                                    410.8     695.4     434.1\n"
+        "numpy: filter                                    590.3    1395.9     712.5\n"
+        "numpy                                           1133.5    2052.0    1255.7\n"
+        "compiled, ONNX policy: navigation                  9.7      24.5      10.4\n"
+        "compiled, ONNX policy: policy                     58.0     119.6      61.9\n"
+        "compiled, ONNX policy: filter                     21.8      53.8      23.7\n"
+        "compiled, ONNX policy                             89.8     173.5      95.9\n"
+        "compiled, compiled policy: navigation              7.7      16.0       8.3\n"
+        "compiled, compiled policy: policy                  9.7      19.7      10.5\n"
+        "compiled, compiled policy: filter                 13.1      34.3      14.7\n"
+        "compiled, compiled policy                         30.6      82.0      33.5\n"
+        "robust MPC (tube MPC (robust))                    15.5      67.9    6490.4   (one 1.10 s plan ...)\n"
+        "[bench] compiled, ONNX policy: 0.076 of the numpy path; of the robust MPC's mean step, 0.0148 with "
+        "navigation, exported policy + filter 0.0132; compiled, compiled policy: 0.027 of the numpy path; of "
+        "the robust MPC's mean step, 0.0052 with navigation, exported policy + filter 0.0039 (target <= "
+        "0.01); every compiled filter answer within 1e-09 N of numpy's\n"
     )
     committed_log(tmp_path, monkeypatch, run_all.flight_path_rows, "results/logs/bench_flight_path.txt", text)
     ((what, measured, ratio, note),) = run_all.flight_path_rows()
     assert what.startswith("learned robust row")
-    assert measured == "1607.7 vs 234.6" and ratio.startswith("0.142 (means); 0.0341 of the robust MPC")
-    assert (
-        "filter 818.7 vs 39.4" in note
-        and "navigation filter 142.5 vs 23.4" in note
-        and "ONNX policy 168.8" in note
+    assert measured == "1133.5 vs 30.6"
+    assert ratio == (
+        "0.027 (means); exported policy + filter 0.0039 of the robust MPC's mean step (target <= 0.01; "
+        "ONNX policy: 0.0132)"
+    )
+    assert note.startswith(
+        "policy 410.8 (torch) vs 9.7 (ONNX 58.0), filter 590.3 vs 13.1, navigation filter 102.2 vs 7.7; "
     )
