@@ -16,6 +16,7 @@
 # ENQUEUE=FILE runs that file's configurations first (loop --enqueue: a hand-found recipe the audit
 # can then reseed like any other candidate; the campaign records it as enqueued, not proposed).
 # WORKERS (default 2) runs that many trainings at once, in the campaign and its audit.
+# PROPOSER (default gp) picks the key-free proposer (tpe: Optuna's TPE): campaign <family>-<PROPOSER>[-cold][-SUFFIX].
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 export OMP_NUM_THREADS=1 MPLBACKEND=Agg PATH="$PWD/.venv/bin:$PATH"
@@ -30,7 +31,8 @@ RUNS=${RUNS:-$runs}
 BUDGET=${BUDGET:-$budget}
 SEEDS=${SEEDS:-5}
 WORKERS=${WORKERS:-2}
-dir=results/agent-levers/$family-gp
+PROPOSER=${PROPOSER:-gp}
+dir=results/agent-levers/$family-$PROPOSER
 warm_start=(--warm-start "${warm[@]}")
 if [ "${WARM:-1}" = 0 ]; then dir=$dir-cold; warm_start=(); fi
 if [ -n "${WARM_FROM:-}" ]; then read -ra warm <<< "$WARM_FROM"; warm_start=(--warm-start "${warm[@]}"); fi
@@ -43,7 +45,7 @@ if [ -f "$dir/campaign.json" ]; then
   autoresearch loop --resume --campaign "$dir" --plain
 else
   # The plateau rule off: the campaign spends its run budget (the target is a report line by default).
-  autoresearch loop --family "$family" --proposer gp --seed 0 --workers "$WORKERS" --max-runs "$RUNS" \
+  autoresearch loop --family "$family" --proposer "$PROPOSER" --seed 0 --workers "$WORKERS" --max-runs "$RUNS" \
     --max-iters 1000 --plateau-window 1000 --max-failures 20 --time-budget "$BUDGET" --eval-allowance 300 \
     "${warm_start[@]}" "${protocol[@]}" "${enqueue[@]}" --campaign "$dir" --plain
 fi
