@@ -117,7 +117,10 @@ class ResidualLaw:
 
 class CompiledPolicy:
     """An MLP (``weights[i]`` (out, in), ``biases[i]`` (out,), ``activation`` between the layers) on
-    standardised docking observations, optionally a bounded correction to ``law`` (module docstring)."""
+    standardised docking observations, optionally a bounded correction to ``law`` (module docstring).
+
+    ``metadata``: what :meth:`save` wrote with it ({} for one built here). One caller at a time: a
+    call works in the instance's own scratch rows."""
 
     def __init__(self, weights, biases, activation: str, obs_mean, obs_std, law: ResidualLaw | None = None):
         if activation not in ACTIVATIONS:
@@ -146,6 +149,7 @@ class CompiledPolicy:
         if np.any(self.obs_std <= 0):
             raise ValueError("obs_std must be > 0")
         self.weights, self.biases, self.activation, self.law = weights, biases, activation, law
+        self.metadata: dict = {}
         # The layers padded into one (L, widest, widest) block: one array argument for numba.
         widest = max(max(w.shape) for w in weights)
         self._weights = np.zeros((len(weights), widest, widest))
