@@ -217,6 +217,10 @@ def test_docking_export_writes_a_compiled_policy_that_flies_as_the_torch_one(exp
     policy, saved = train.load_policy(family / "out")
     compiled = CompiledPolicy.load(tmp_path / "p.npz")
     assert compiled.metadata["config"] == saved["config"] and compiled.metadata["runtime_cbf_filter"] is True
+    assert (
+        compiled.metadata["policy_sha256"]
+        == hashlib.sha256((family / "out" / "policy.pt").read_bytes()).hexdigest()
+    )
     held_out = evaluation_set(train.TASK, train.N_EVAL, problem=train.PROBLEM)
     flight = fly(train.PROBLEM, policy.act, held_out.starts, held_out.goals, cbf_margin=train.PROBLEM.margin)
     seen = observations(train.TASK, flight, train.PROBLEM.horizon)

@@ -19,6 +19,7 @@ arrays in an .npz with the same metadata), held to the torch policy the same way
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 from pathlib import Path
@@ -74,7 +75,9 @@ def main() -> None:
             raise SystemExit(f"export.py: {err}") from None
         print("EXPORTED: " + json.dumps(summary), flush=True)
     if args.compiled is not None:
-        print("COMPILED: " + json.dumps(write_compiled(policy, args.compiled, metadata)), flush=True)
+        # stamped with its source's sha256, as the ONNX file is (export_checked)
+        stamped = {**metadata, "policy_sha256": hashlib.sha256(source.read_bytes()).hexdigest()}
+        print("COMPILED: " + json.dumps(write_compiled(policy, args.compiled, stamped)), flush=True)
 
 
 def write_compiled(policy, path: Path, metadata: dict) -> dict:
