@@ -18,7 +18,7 @@ each waypoint at ``g + along * axis + across * side`` in the plane of the dockin
 chaser). The observation is the docking one, ``[r (3), v (3), g (3), tau]``.
 
 A family's export.py writes one with ``--compiled policy.npz`` and holds it to its torch policy on
-1024 observations before keeping it; :meth:`CompiledPolicy.load` reads it back:
+1024 observations before keeping it (:func:`compile_checked`); :meth:`CompiledPolicy.load` reads it back:
 
     from cwh_envs.compiled_policy import CompiledPolicy
 
@@ -50,6 +50,7 @@ from cwh_envs.controllers import AXIS_TOLERANCE
 from cwh_envs.observations import DOCKING_OBS_DIM
 
 ACTIVATIONS = ("tanh", "relu", "gelu")  # gelu: the exact (erf) form, torch.nn.GELU's default
+_TORCH_ACTIVATIONS = {"Tanh": "tanh", "ReLU": "relu", "GELU": "gelu"}  # torch.nn class -> ours
 FORMAT = "cwh-compiled-policy/1"  # the .npz's "format" entry; a reader refuses any other
 
 
@@ -265,6 +266,55 @@ class CompiledPolicy:
             )
         policy.metadata = header["metadata"]
         return policy
+
+
+def compile_checked(
+    policy,
+    path: str | os.PathLike,
+    metadata: dict,
+    law: ResidualLaw | None = None,
+    *,
+    rows=1024,
+    tolerance=1e-4,
+) -> dict:
+    """A family's trained torch ``policy`` as a :class:`CompiledPolicy` at ``path`` (with ``metadata``),
+    kept only if its actions are within ``tolerance`` of ``policy.act`` on ``rows`` observations
+    around the training statistics, as :func:`cwh_envs.onnx_policy.export_checked` holds an ONNX file;
+    otherwise ValueError and nothing written. Returns the summary the families' export.py print.
+
+    ``policy.net`` is a sequence of linear layers with one activation between them (dropout is off in
+    flight); ``law`` the one its residual form corrects (None: the net is the policy)."""
+    from cwh_envs.onnx_policy import action_difference
+
+    linear, activations = [], set()
+    for module in policy.net:
+        kind = type(module).__name__
+        if kind == "Linear":
+            linear.append(module)
+        elif kind in _TORCH_ACTIVATIONS and getattr(module, "approximate", "none") == "none":
+            activations.add(_TORCH_ACTIVATIONS[kind])
+        elif kind != "Dropout":
+            raise ValueError(f"the policy's net holds a {module!r}, which CompiledPolicy does not compute")
+    if len(activations) > 1:
+        raise ValueError(f"the policy's net mixes activations {sorted(activations)}; CompiledPolicy has one")
+    compiled = CompiledPolicy(
+        [layer.weight.detach().double().cpu().numpy() for layer in linear],
+        [layer.bias.detach().double().cpu().numpy() for layer in linear],
+        activations.pop() if activations else "tanh",  # one layer alone has no activation to apply
+        policy.obs_mean.double().cpu().numpy(),
+        policy.obs_std.double().cpu().numpy(),
+        law,
+    )
+    gap = action_difference(
+        policy.act, compiled, policy.obs_mean.cpu().numpy(), policy.obs_std.cpu().numpy(), rows
+    )
+    if not gap <= tolerance:
+        raise ValueError(
+            f"the compiled policy's actions differ from the torch policy's by {gap:.3g} (> {tolerance:g}); "
+            "nothing written"
+        )
+    compiled.save(path, metadata)
+    return {"compiled": str(path), "task": metadata.get("task"), "max_action_difference": gap}
 
 
 # reassociation lets the layers' sums vectorise (4 float64 lanes): about 2x on the MLP

@@ -213,3 +213,19 @@ def test_an_mlp_alone_is_computed_as_written(tmp_path):
     assert 0 < np.mean(np.abs(expected) == 1.0) < 1  # some actions clipped, some not
     again = CompiledPolicy.load(policy.save(tmp_path / "mlp.npz"))
     np.testing.assert_array_equal(again(obs), policy(obs))
+
+
+def test_compile_checked_refuses_a_net_it_does_not_compute(tmp_path):
+    from cwh_envs.compiled_policy import compile_checked
+
+    policy, config = torch_policy("docking", "direct", "tanh")
+    nn = torch.nn
+    for net, problem in (
+        (nn.Sequential(nn.Linear(10, 8), nn.Sigmoid(), nn.Linear(8, 3)), "holds a Sigmoid"),
+        (nn.Sequential(nn.Linear(10, 8), nn.Tanh(), nn.Linear(8, 8), nn.ReLU(), nn.Linear(8, 3)), "mixes"),
+        (nn.Sequential(nn.Linear(10, 8), nn.GELU(approximate="tanh"), nn.Linear(8, 3)), "holds a GELU"),
+    ):
+        policy.net = net
+        with pytest.raises(ValueError, match=problem):
+            compile_checked(policy, tmp_path / "p.npz", {"config": config})
+        assert not (tmp_path / "p.npz").exists()

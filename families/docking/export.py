@@ -28,7 +28,7 @@ import numpy as np
 import torch
 import train
 
-from cwh_envs.onnx_policy import action_difference, export_checked
+from cwh_envs.onnx_policy import export_checked
 
 ENV_ID = "CWHDockKOZ-v1"
 CHECK_ROWS = 1024  # observations the exported file is compared with the torch policy on
@@ -83,9 +83,8 @@ def main() -> None:
 def write_compiled(policy, path: Path, metadata: dict) -> dict:
     """``policy`` as a CompiledPolicy at ``path``, kept only if its actions are within
     CHECK_TOLERANCE of the torch policy's on CHECK_ROWS observations; its summary line."""
-    from cwh_envs.compiled_policy import CompiledPolicy, ResidualLaw
+    from cwh_envs.compiled_policy import ResidualLaw, compile_checked
 
-    linear = [layer for layer in policy.net if isinstance(layer, torch.nn.Linear)]
     form = getattr(policy, "form", "residual" if policy.residual else "direct")
     law = None
     if form != "direct":
@@ -100,24 +99,10 @@ def write_compiled(policy, path: Path, metadata: dict) -> dict:
             # Policy.forward: the route's correction is off past its last waypoint
             train.PROBLEM.horizon - train.CONE_ROUTE[-1].step if route else -1,
         )
-    compiled = CompiledPolicy(
-        [layer.weight.detach().double().numpy() for layer in linear],
-        [layer.bias.detach().double().numpy() for layer in linear],
-        metadata["config"]["ACTIVATION"],
-        policy.obs_mean.double().numpy(),
-        policy.obs_std.double().numpy(),
-        law,
-    )
-    difference = action_difference(
-        policy.act, compiled, policy.obs_mean.numpy(), policy.obs_std.numpy(), CHECK_ROWS
-    )
-    if not difference <= CHECK_TOLERANCE:
-        raise SystemExit(
-            f"export.py: the compiled policy's actions differ from the torch policy's by {difference:.3g} "
-            f"(> {CHECK_TOLERANCE:g}); nothing written"
-        )
-    compiled.save(path, metadata)
-    return {"compiled": str(path), "task": metadata["task"], "max_action_difference": difference}
+    try:
+        return compile_checked(policy, path, metadata, law, rows=CHECK_ROWS, tolerance=CHECK_TOLERANCE)
+    except ValueError as err:
+        raise SystemExit(f"export.py: {err}") from None
 
 
 if __name__ == "__main__":
